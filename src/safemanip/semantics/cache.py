@@ -1,0 +1,121 @@
+"""On-disk cache of structured VLM answers, so evaluations can be re-run without calling out again.
+
+One JSON file per answer (never pickle: cache directories get shared and JSON cannot execute code).
+The key hashes everything that determines the answer's distribution: model, full prompt text,
+image bytes and the schema. Writes go to a temporary file that is then renamed with ``os.replace``,
+so a crash or a concurrent writer never leaves a half-written entry behind.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Sequence
+
+from safemanip.semantics.base import BackendError
+
+CACHE_FORMAT = "safemanip-vlm-cache/1"
+CACHE_MODES = ("readwrite", "readonly", "cache_only")
+
+
+def cache_key(model: str, prompt: str, images: Sequence[bytes], schema: dict) -> str:
+    """sha256 hex digest over (model, prompt text, image bytes, canonical schema JSON).
+
+    Every field is length-prefixed so that moving bytes from one field to the next changes the key.
+    """
+    h = hashlib.sha256()
+
+    def feed(tag: bytes, data: bytes) -> None:
+        h.update(tag + len(data).to_bytes(8, "big") + data)
+
+    feed(b"model", model.encode("utf-8"))
+    feed(b"prompt", prompt.encode("utf-8"))
+    for img in images:
+        feed(b"image", bytes(img))
+    feed(b"schema", json.dumps(schema, sort_keys=True, separators=(",", ":")).encode("utf-8"))
+    return h.hexdigest()
+
+
+class ResponseCache:
+    """Answers stored as ``<root>/<key[:2]>/<key>.json``.
+
+    Modes:
+      - ``readwrite``: read hits, store new answers (default).
+      - ``readonly``: read hits, never write (e.g. a shared, frozen cache).
+      - ``cache_only``: read hits; a miss raises ``BackendError("cache miss ...")`` *before* any call
+        goes out, which makes an evaluation reproducible offline from a recorded cache.
+    """
+
+    def __init__(self, root: str | os.PathLike, mode: str = "readwrite") -> None:
+        if mode not in CACHE_MODES:
+            raise ValueError(f"cache mode must be one of {CACHE_MODES}, got {mode!r}")
+        self.root = Path(root)
+        self.mode = mode
+        self.hits = 0
+        self.misses = 0
+
+    @property
+    def cache_only(self) -> bool:
+        return self.mode == "cache_only"
+
+    def _path(self, key: str) -> Path:
+        return self.root / key[:2] / f"{key}.json"
+
+    def get(self, key: str) -> dict | None:
+        """The stored answer for ``key``, or None. In cache_only mode a miss raises BackendError."""
+        path = self._path(key)
+        entry: dict | None = None
+        corrupt: str | None = None
+        try:
+            entry = json.loads(path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            pass
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            # a corrupt entry is treated as a miss (and overwritten on the next store), not as fatal
+            corrupt = f"{path}: {exc}"
+        if entry is not None and not isinstance(entry, dict):
+            corrupt, entry = f"{path}: not a JSON object", None
+        if entry is not None and (entry.get("format") != CACHE_FORMAT or entry.get("key") != key
+                                  or not isinstance(entry.get("answer"), dict)):
+            corrupt, entry = f"{path}: not a {CACHE_FORMAT} entry for this key", None
+        if entry is None:
+            self.misses += 1
+            if self.cache_only:
+                why = f" (unreadable entry {corrupt})" if corrupt else ""
+                raise BackendError(
+                    f"cache miss for key {key[:12]}... in {self.root}{why}; the cache is in cache_only mode, so no "
+                    "request was sent. Record answers first with a readwrite cache, or point at the cache "
+                    "directory that holds them (the key covers model, prompt text, images and schema).")
+            return None
+        self.hits += 1
+        return entry["answer"]
+
+    def put(self, key: str, answer: dict, meta: dict | None = None) -> None:
+        """Store ``answer`` atomically (no-op unless mode is readwrite)."""
+        if self.mode != "readwrite":
+            return
+        path = self._path(key)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        entry = {"format": CACHE_FORMAT, "key": key, "created_unix": time.time(), "meta": meta or {},
+                 "answer": answer}
+        fd, tmp = tempfile.mkstemp(prefix=f".{key[:12]}.", suffix=".tmp", dir=path.parent)
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as f:
+                json.dump(entry, f, indent=1, sort_keys=True)
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            try:
+                os.unlink(tmp)
+            except FileNotFoundError:
+                pass
+            raise
+
+    def count(self) -> int:
+        """Number of stored entries (a method, not __len__, so an empty cache is still truthy)."""
+        return sum(1 for _ in self.root.glob("??/*.json")) if self.root.exists() else 0
