@@ -1,0 +1,224 @@
+"""VLM backend speaking the OpenAI chat-completions API (OpenAI itself, or any compatible server:
+vLLM, llama.cpp server, Ollama's /v1 endpoint, ...).
+
+Structured outputs (``response_format`` of type ``json_schema`` with ``strict: true``) restrict the
+answer to the scene's labels; every answer is still validated here, since compatible servers differ
+in how faithfully they honour the schema. Retries are our own loop (the client's are switched off)
+so that back-off, the number of attempts and which errors are retried are explicit and testable.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import logging
+import os
+import random
+import time
+from typing import Any, Callable, Sequence
+
+import openai
+
+from safemanip.semantics.base import (BackendError, ConstraintAnswer, ConstraintQuery, ObjectAnswer, ObjectQuery,
+                                      SchemaError)
+from safemanip.semantics.cache import ResponseCache, cache_key
+from safemanip.semantics.prompts import load_prompt
+from safemanip.semantics.schemas import (CONSTRAINT_SCHEMA_NAME, OBJECT_SCHEMA_NAME, constraint_schema,
+                                         object_selection_schema, parse_constraint_answer, parse_object_answer)
+
+log = logging.getLogger(__name__)
+
+# HTTP statuses worth another attempt: timeouts, conflicts, rate limits and server-side failures
+_RETRY_STATUS = {408, 409, 429}
+
+
+class OpenAIBackend:
+    """Object selection and constraint assignment by a vision-language model behind an OpenAI-style API.
+
+    The API key is read from ``OPENAI_API_KEY`` (``"none"`` when unset, which local servers accept);
+    it is handed to the client only and never logged, cached or included in ``describe()``.
+    """
+
+    needs_images = True
+
+    def __init__(self, model: str = "gpt-4o", base_url: str | None = None, *, timeout_s: float = 30.0,
+                 attempts: int = 3, backoff_s: float = 1.0, backoff_max_s: float = 16.0,
+                 temperature: float | None = 0.0, max_tokens: int | None = 1000, prompt_version: str = "v1",
+                 cache: ResponseCache | None = None, client: Any | None = None,
+                 sleep: Callable[[float], None] = time.sleep, seed: int | None = None) -> None:
+        if attempts < 1:
+            raise ValueError(f"attempts must be >= 1, got {attempts}")
+        if timeout_s <= 0:
+            raise ValueError(f"timeout_s must be > 0, got {timeout_s}")
+        self.name = f"openai:{model}"
+        self.model = model
+        self.base_url = base_url
+        self.timeout_s = float(timeout_s)
+        self.attempts = int(attempts)
+        self.backoff_s = float(backoff_s)
+        self.backoff_max_s = float(backoff_max_s)
+        self.temperature = temperature
+        self.max_tokens = max_tokens
+        self.prompt_version = prompt_version
+        self.cache = cache
+        self._sleep = sleep
+        self._rng = random.Random(seed)
+        self.calls = 0
+        """Requests actually sent (cache hits do not count)."""
+        if client is None:
+            client = openai.OpenAI(base_url=base_url, api_key=os.environ.get("OPENAI_API_KEY") or "none",
+                                   timeout=self.timeout_s, max_retries=0)
+        self._client = client
+
+    def __repr__(self) -> str:
+        return f"OpenAIBackend(model={self.model!r}, base_url={self.base_url!r})"
+
+    def describe(self) -> dict:
+        return {"backend": "openai", "model": self.model, "base_url": self.base_url,
+                "prompt_version": self.prompt_version, "temperature": self.temperature,
+                "cache": None if self.cache is None else {"root": str(self.cache.root), "mode": self.cache.mode}}
+
+    def prepare(self, names: Sequence[str]) -> None:
+        """Nothing to precompute: the model sees names and images at query time."""
+
+    # ----------------------------------------------------------------- queries
+
+    def select_objects(self, query: ObjectQuery) -> ObjectAnswer:
+        labels = query.labels
+        k = query.n_select
+        schema = object_selection_schema(labels, k)
+        system = load_prompt("object_selection", self.prompt_version, task=query.task)
+        listing = "\n".join(f"position {pos}: {label}" for pos, label in enumerate(labels))
+        user = (f"Objects on the table, sorted by distance to the end-effector (position 0 is the nearest):\n"
+                f"{listing}\n\nChoose exactly k = {k} objects.")
+        if not query.images:
+            user += " No camera frame is available for this query; rely on the sorted list."
+        answer, cached = self._structured(system, user, query.images or [], OBJECT_SCHEMA_NAME, schema,
+                                          lambda a: parse_object_answer(a, labels, k))
+        ids, explanation, description = parse_object_answer(answer, labels, k)
+        return ObjectAnswer(ids=ids, explanation=explanation, image_description=description, raw=answer,
+                            cached=cached)
+
+    def assign_constraints(self, query: ConstraintQuery) -> ConstraintAnswer:
+        labels = query.labels
+        schema = constraint_schema(labels)
+        system = load_prompt("constraint_selection", self.prompt_version, task=query.task)
+        listing = "\n".join(f"- {label}" for label in labels)
+        user = f"Objects on the table:\n{listing}\n\nGive one constraint type for every object."
+        answer, cached = self._structured(system, user, query.images or [], CONSTRAINT_SCHEMA_NAME, schema,
+                                          lambda a: parse_constraint_answer(a, labels))
+        constraints, explanations = parse_constraint_answer(answer, labels)
+        return ConstraintAnswer(constraints=constraints, explanations=explanations, raw=answer, cached=cached)
+
+    # ----------------------------------------------------------------- transport
+
+    def _structured(self, system: str, user: str, images: Sequence[bytes], schema_name: str, schema: dict,
+                    check: Callable[[dict], Any]) -> tuple[dict, bool]:
+        """A validated structured answer (from the cache when possible) and whether it was cached."""
+        key = cache_key(self.model, json.dumps([system, user]), images, schema) if self.cache is not None else ""
+        if self.cache is not None:
+            hit = self.cache.get(key)  # raises BackendError on a miss in cache_only mode
+            if hit is not None:
+                try:
+                    check(hit)
+                    return hit, True
+                except SchemaError as exc:
+                    if self.cache.cache_only:
+                        raise BackendError(f"cached answer {key[:12]}... does not fit the scene ({exc}) and the "
+                                           "cache is in cache_only mode; delete the entry or re-record it") from exc
+                    log.warning("ignoring cached answer %s...: %s", key[:12], exc)
+        content: list[dict] = [{"type": "text", "text": user}]
+        for png in images:
+            url = "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+            content.append({"type": "image_url", "image_url": {"url": url}})
+        messages = [{"role": "system", "content": system}, {"role": "user", "content": content}]
+        response_format = {"type": "json_schema",
+                           "json_schema": {"name": schema_name, "strict": True, "schema": schema}}
+
+        last: BackendError | None = None
+        for attempt in range(self.attempts):
+            if attempt:
+                delay = min(self.backoff_max_s, self.backoff_s * 2 ** (attempt - 1))
+                delay *= 0.5 + 0.5 * self._rng.random()  # jitter so parallel workers do not retry in lock-step
+                log.warning("%s: attempt %d/%d failed (%s); retrying in %.2fs", self.name, attempt, self.attempts,
+                            last, delay)
+                self._sleep(delay)
+            try:
+                answer = self._request(messages, response_format)
+                check(answer)
+            except _Retryable as exc:
+                last = BackendError(str(exc))
+                continue
+            except SchemaError as exc:
+                # a model (esp. behind a server that ignores strict schemas) can miss once and succeed next time
+                last = exc
+                continue
+            if self.cache is not None:
+                self.cache.put(key, answer, meta={"model": self.model, "schema": schema_name})
+            return answer, False
+        raise BackendError(f"{self.name}: no valid answer after {self.attempts} attempt(s); last error: {last}")
+
+    def _request(self, messages: list[dict], response_format: dict) -> dict:
+        kwargs: dict[str, Any] = {"model": self.model, "messages": messages, "response_format": response_format,
+                                  "timeout": self.timeout_s}
+        if self.temperature is not None:
+            kwargs["temperature"] = self.temperature
+        if self.max_tokens is not None:
+            kwargs["max_tokens"] = self.max_tokens
+        self.calls += 1
+        try:
+            completion = self._client.chat.completions.create(**kwargs)
+        except openai.APITimeoutError as exc:
+            raise _Retryable(f"request timed out after {self.timeout_s:g}s ({exc.__class__.__name__})") from exc
+        except openai.APIConnectionError as exc:
+            raise _Retryable(f"cannot reach {self.base_url or 'the OpenAI API'}: {exc}") from exc
+        except openai.AuthenticationError as exc:
+            raise BackendError(f"{self.name}: authentication failed (HTTP 401); set OPENAI_API_KEY to a valid key "
+                               "for this server") from exc
+        except openai.NotFoundError as exc:
+            raise BackendError(f"{self.name}: HTTP 404 from {self.base_url or 'the OpenAI API'}; check the model "
+                               "name and that base_url ends in /v1") from exc
+        except openai.APIStatusError as exc:
+            if exc.status_code in _RETRY_STATUS or exc.status_code >= 500:
+                raise _Retryable(f"HTTP {exc.status_code} from server") from exc
+            raise BackendError(f"{self.name}: HTTP {exc.status_code}: {_brief(exc)}; the server may not support "
+                               "json_schema response_format or image inputs for this model") from exc
+        except openai.APIError as exc:
+            raise _Retryable(f"API error: {_brief(exc)}") from exc
+        except (ValueError, TypeError, KeyError, AttributeError) as exc:
+            # the client could not make sense of the reply (e.g. a non-JSON body)
+            raise _Retryable(f"unreadable response: {exc.__class__.__name__}: {_brief(exc)}") from exc
+        return _content_json(completion)
+
+
+class _Retryable(Exception):
+    """Transient failure: worth another attempt after back-off."""
+
+
+def _content_json(completion: Any) -> dict:
+    """The JSON object in the first choice's message, or _Retryable/BackendError saying why not."""
+    try:
+        choice = completion.choices[0]
+        message = choice.message
+    except (AttributeError, IndexError, TypeError) as exc:
+        raise _Retryable(f"response has no choices: {_brief(completion)}") from exc
+    refusal = getattr(message, "refusal", None)
+    if refusal:
+        raise BackendError(f"model refused: {_brief(refusal)}")
+    if getattr(choice, "finish_reason", None) == "length":
+        raise _Retryable("answer truncated (finish_reason=length); raise max_tokens")
+    content = message.content
+    if not isinstance(content, str) or not content.strip():
+        raise _Retryable("empty message content")
+    try:
+        answer = json.loads(content)
+    except json.JSONDecodeError as exc:
+        raise _Retryable(f"message content is not JSON ({exc.msg}): {_brief(content)}") from exc
+    if not isinstance(answer, dict):
+        raise _Retryable(f"message content is JSON but not an object: {_brief(content)}")
+    return answer
+
+
+def _brief(value: Any, limit: int = 200) -> str:
+    text = str(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
