@@ -32,6 +32,20 @@ Pieces
     Plain functions for the CLI: ``classify_constraints``, ``constraint_matrix`` (Tables III and IV
     over the catalog), ``object_selection_latency``, and ``make_backend``.
 
+Measured (SemanticBackend, CPU, seed 0)
+---------------------------------------
+- Held-out catalog (35 names, none used as examples): 28/35 correct (80.0 %); by class fragile 9/12,
+  soft 9/11, durable 10/12. Wrong: glass vase, glass jar, egg carton -> soft_contact; yogurt cup ->
+  no_contact; glue stick -> any_contact; tennis ball, wooden spoon -> no_contact. No fragile object
+  is ever given any_contact.
+- Table III (200 trials x 6 objects, % of appearances; rows GT, columns predicted
+  no/soft/any_contact): no_contact 77.6/22.4/0.0, soft_contact 10.2/82.4/7.4, any_contact
+  19.5/0.0/80.5. The backend is deterministic, so trials only reweight objects; with mild name
+  variants (``name_variants=True``) 78.7/21.3/0.0, 6.6/85.5/7.9, 20.2/0.0/79.8.
+- Object selection with 6 objects, k=2, through DynamicVLMSelector after warm-up: median 0.06 ms,
+  p95 0.09 ms per query. Model load about 6 s once per process; one batched embedding call per new
+  scene about 17 ms.
+
 Heavy dependencies (openai, torch via sentence-transformers) are imported only when a backend that
 needs them is used.
 """

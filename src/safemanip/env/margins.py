@@ -1,0 +1,80 @@
+"""Target and failure margins of the slide-out task as small pure functions.
+
+Sign conventions follow the paper: l(s) > 0 inside the target set, g(s) < 0 inside the failure set.
+All distances are in metres; the soft-contact margin mixes in a speed margin (m/s) exactly as the
+paper's g_soft does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import math
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """Margin thresholds. Paper values (Table V) where the paper gives them."""
+
+    out_clearance: float = 0.04
+    """d1: gap required between the footprints of the two boxes for the bottom one to count as out."""
+    goal_radius: float = 0.08
+    """d2: the bottom box centre must be within this distance of the goal centre."""
+    top_box_displacement: float = 0.10
+    """d3: the top box may move at most this far (horizontally) from where it started."""
+    top_box_min_up: float = 0.5
+    """The top box's up-axis must keep a z-component above this (cos 60 deg); lower means it flipped."""
+    collision: float = 0.01
+    """d4: collision threshold (paper Table V: 0.01 m)."""
+    relative_speed: float = 1.0
+    """Soft-contact relative velocity threshold (paper Table V: 1.0 m/s)."""
+
+
+DEFAULT_THRESHOLDS = Thresholds()
+
+
+def margin_out_from_under(bottom_xy, top_xy, bottom_half_xy, top_half_xy, clearance: float) -> float:
+    """l1 > 0 once the two boxes' footprints are separated by more than ``clearance``.
+
+    A separating-axis test on the axis-aligned footprints (the held box does not rotate; the top
+    box's small yaw is ignored), i.e. the paper's ||x_bot - x_top|| - d1 made exact for boxes.
+    """
+    gap_x = abs(bottom_xy[0] - top_xy[0]) - (bottom_half_xy[0] + top_half_xy[0])
+    gap_y = abs(bottom_xy[1] - top_xy[1]) - (bottom_half_xy[1] + top_half_xy[1])
+    return float(max(gap_x, gap_y) - clearance)
+
+
+def margin_in_goal(bottom_xy, goal_xy, goal_radius: float) -> float:
+    """l2 = d2 - ||x_bot - x_goal|| (horizontal)."""
+    return float(goal_radius - math.hypot(bottom_xy[0] - goal_xy[0], bottom_xy[1] - goal_xy[1]))
+
+
+def margin_top_box(top_xy, top_xy_start, top_up_z: float, max_displacement: float, min_up: float) -> float:
+    """g_dyn: the top box stays within d3 of its start (horizontally) and is not flipped."""
+    displaced = max_displacement - math.hypot(top_xy[0] - top_xy_start[0], top_xy[1] - top_xy_start[1])
+    return min(displaced, float(top_up_z) - min_up)
+
+
+def margin_no_contact(distance: float, collision: float) -> float:
+    """g_hard = signed geom distance - collision threshold."""
+    return float(distance - collision)
+
+
+def margin_soft_contact(distance: float, relative_speed: float, collision: float, speed_limit: float) -> float:
+    """g_soft: safe when far away or when moving gently, i.e. max(distance margin, speed margin)."""
+    return float(max(distance - collision, speed_limit - relative_speed))
+
+
+def margin_in_workspace(xy, half_extents, inset: float) -> float:
+    """g_oob: how far the point is inside the table top shrunk by ``inset`` (negative outside)."""
+    hx, hy = half_extents
+    x, y = xy
+    return float(min(hx - inset - abs(x), hy - inset - abs(y)))
+
+
+def is_success(l: float, g: float) -> bool:
+    return l > 0.0 and g >= 0.0
+
+
+def is_failure(g: float) -> bool:
+    return g < 0.0

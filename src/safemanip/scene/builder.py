@@ -1,0 +1,160 @@
+"""Compose the scene with ``mujoco.MjSpec``: arena (table, goal, cameras, light) + robot + objects.
+
+The compiled model depends only on *which* objects are present; their poses are set per episode
+through qpos, so ``build_model`` results are cached by object names.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import mujoco
+import numpy as np
+
+from safemanip.scene.catalog import CatalogObject, load_catalog
+from safemanip.scene.config import GEOMETRY, TaskGeometry
+from safemanip.scene.embodiment import COLLIDE_OBJECTS, COLLIDE_TABLE, CartesianHand
+
+TIMESTEP = 0.002
+CONTROL_DT = 0.05  # 20 Hz control
+BOX_FRICTION = 0.3
+TABLE_FRICTION = 0.3
+WHITE_BOX = (0.95, 0.95, 0.92, 1.0)
+BLUE_BOX = (0.15, 0.30, 0.80, 1.0)
+
+_GEOM_TYPES = {"box": mujoco.mjtGeom.mjGEOM_BOX, "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER,
+               "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE, "sphere": mujoco.mjtGeom.mjGEOM_SPHERE}
+
+
+def _part_volume(part) -> float:
+    s = part.size
+    if part.type == "box":
+        return 8 * s[0] * s[1] * s[2]
+    if part.type == "cylinder":
+        return np.pi * s[0] ** 2 * 2 * s[1]
+    if part.type == "capsule":
+        return np.pi * s[0] ** 2 * 2 * s[1] + 4 / 3 * np.pi * s[0] ** 3
+    return 4 / 3 * np.pi * s[0] ** 3
+
+
+def _add_arena(spec: mujoco.MjSpec, geo: TaskGeometry) -> None:
+    tx, ty = geo.table_half_extents
+    spec.option.timestep = TIMESTEP
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    spec.option.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
+    spec.visual.quality.shadowsize = 0
+    spec.visual.global_.offwidth = 1280
+    spec.visual.global_.offheight = 960
+    spec.stat.center = [0, 0, 0]
+    spec.stat.extent = 1.0
+    world = spec.worldbody
+    world.add_light(name="sun", pos=[0, -0.4, 2.0], dir=[0, 0.2, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL, castshadow=0,
+                    diffuse=[0.8, 0.8, 0.8], ambient=[0.35, 0.35, 0.35])
+    world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[3, 3, 0.1], pos=[0, 0, -0.8],
+                   rgba=[0.35, 0.35, 0.38, 1], contype=0, conaffinity=0)
+    # table friction wins over every object's thanks to its higher priority
+    world.add_geom(name="table", type=mujoco.mjtGeom.mjGEOM_BOX, size=[tx, ty, 0.025], pos=[0, 0, -0.025],
+                   rgba=[0.55, 0.42, 0.30, 1], friction=[TABLE_FRICTION, 0.005, 0.0001], priority=1,
+                   contype=COLLIDE_TABLE, conaffinity=COLLIDE_TABLE)
+    for sx in (-1, 1):
+        for sy in (-1, 1):
+            world.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.025, 0.025, 0.385],
+                           pos=[sx * (tx - 0.05), sy * (ty - 0.05), -0.435], rgba=[0.45, 0.33, 0.22, 1],
+                           contype=0, conaffinity=0)
+    gx, gy = geo.goal_xy
+    world.add_geom(name="goal", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[geo.goal_radius, 0.0008],
+                   pos=[gx, gy, 0.0008], rgba=[0.1, 0.8, 0.2, 0.45], contype=0, conaffinity=0)
+    world.add_camera(name="front", pos=[0.0, -1.55, 1.05], xyaxes=[1, 0, 0, 0, 0.55, 0.835], fovy=50)
+    world.add_camera(name="top", pos=[0.0, 0.0, 1.9], xyaxes=[1, 0, 0, 0, 1, 0], fovy=50)
+
+
+def _add_top_box(spec: mujoco.MjSpec, geo: TaskGeometry) -> None:
+    hx, hy, hz = geo.box_half_extents
+    sx, sy = geo.stack_xy
+    top = spec.worldbody.add_body(name="box_top", pos=[sx, sy, 3 * hz + 0.0005])
+    top.add_freejoint(name="box_top")
+    top.add_geom(name="box_top", type=mujoco.mjtGeom.mjGEOM_BOX, size=[hx, hy, hz], mass=geo.box_mass,
+                 rgba=BLUE_BOX, friction=[BOX_FRICTION, 0.005, 0.0001],
+                 contype=COLLIDE_TABLE | COLLIDE_OBJECTS, conaffinity=COLLIDE_TABLE | COLLIDE_OBJECTS)
+
+
+def _add_object(spec: mujoco.MjSpec, index: int, obj: CatalogObject) -> None:
+    body = spec.worldbody.add_body(name=f"obj{index}", pos=[0, 0, 0])
+    body.add_freejoint(name=f"obj{index}")
+    total = sum(_part_volume(p) for p in obj.parts)
+    for j, part in enumerate(obj.parts):
+        _add_part(body, f"obj{index}_g{j}", part, obj, total)
+
+
+def _add_part(body, name, part, obj: CatalogObject, total_volume: float):
+    geom = body.add_geom(name=name, type=_GEOM_TYPES[part.type], size=list(part.size) + [0] * (3 - len(part.size)),
+                         pos=part.pos, mass=obj.mass * _part_volume(part) / total_volume, rgba=obj.rgba,
+                         friction=[0.5, 0.005, 0.0001],
+                         contype=COLLIDE_TABLE | COLLIDE_OBJECTS, conaffinity=COLLIDE_TABLE | COLLIDE_OBJECTS)
+    if any(part.euler):
+        quat = np.zeros(4)
+        mujoco.mju_euler2Quat(quat, np.asarray(part.euler, dtype=float), "xyz")
+        geom.quat = quat
+    return geom
+
+
+def build_spec(names: tuple[str, ...], geometry: TaskGeometry = GEOMETRY, sleep: bool = True) -> mujoco.MjSpec:
+    catalog = load_catalog()
+    spec = mujoco.MjSpec()
+    spec.modelname = "slide_out"
+    _add_arena(spec, geometry)
+    CartesianHand().attach(spec, geometry, WHITE_BOX, BOX_FRICTION)
+    _add_top_box(spec, geometry)
+    for i, name in enumerate(names):
+        _add_object(spec, i, catalog[name])
+    if sleep:
+        # resting clutter islands go to sleep and cost nothing until something touches them
+        spec.option.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)
+    return spec
+
+
+@lru_cache(maxsize=64)
+def build_model(names: tuple[str, ...], sleep: bool = True) -> mujoco.MjModel:
+    """Compiled model for this set of clutter objects (cached; treat it as read-only)."""
+    return build_spec(names, sleep=sleep).compile()
+
+
+@dataclass
+class SceneIndex:
+    """Name -> id lookups done once per compiled model."""
+
+    top_box_body: int
+    top_box_qpos: int
+    top_box_qvel: int
+    bottom_box_body: int
+    manipulated_geoms: np.ndarray  # the bottom box and the hand's palm
+    object_bodies: np.ndarray  # (N,)
+    object_qpos: np.ndarray  # (N,) start of each free joint's qpos
+    object_qvel: np.ndarray
+    object_geoms: list[np.ndarray]  # per object, its geom ids
+    geom_to_object: dict[int, int]
+    object_qvel_flat: np.ndarray  # (3N,) qvel indices of the objects' linear velocities, for one gather
+    object_reach: np.ndarray  # (N,) radius around the body origin that contains all of the object's geoms
+
+    @classmethod
+    def from_model(cls, model: mujoco.MjModel, n_objects: int) -> "SceneIndex":
+        bodies = np.array([model.body(f"obj{i}").id for i in range(n_objects)], dtype=int)
+        geoms = [np.flatnonzero(model.geom_bodyid == b) for b in bodies]
+        top = model.joint("box_top")
+        return cls(
+            top_box_body=model.body("box_top").id,
+            top_box_qpos=int(top.qposadr[0]),
+            top_box_qvel=int(top.dofadr[0]),
+            bottom_box_body=model.body("box_bottom").id,
+            manipulated_geoms=np.array([model.geom("box_bottom").id, model.geom("hand_palm").id]),
+            object_bodies=bodies,
+            object_qpos=np.array([model.joint(f"obj{i}").qposadr[0] for i in range(n_objects)], dtype=int),
+            object_qvel=np.array([model.joint(f"obj{i}").dofadr[0] for i in range(n_objects)], dtype=int),
+            object_geoms=geoms,
+            geom_to_object={int(g): i for i, gs in enumerate(geoms) for g in gs},
+            object_qvel_flat=np.array([model.joint(f"obj{i}").dofadr[0] + j for i in range(n_objects) for j in range(3)],
+                                      dtype=int),
+            object_reach=np.array([max((np.linalg.norm(model.geom_pos[g]) + model.geom_rbound[g] for g in gs), default=0.0)
+                                   for gs in geoms]),
+        )

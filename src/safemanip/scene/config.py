@@ -1,0 +1,106 @@
+"""Scene geometry and the small, validated scene config.
+
+World frame: origin at the centre of the table top, x to the right (towards the goal), y away
+from the robot, z up. The robot stands on the -y side.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+from safemanip.scene.catalog import SEMANTIC_CLASSES, load_catalog
+
+MAX_OBJECTS = 8
+
+
+@dataclass(frozen=True)
+class TaskGeometry:
+    """Fixed geometry of the slide-out task (metres, kilograms)."""
+
+    table_half_extents: tuple[float, float] = (0.80, 0.45)
+    """Half length (x) and half depth (y) of the table top."""
+    box_half_extents: tuple[float, float, float] = (0.135, 0.095, 0.035)
+    """Cereal box lying flat: 0.27 x 0.19 x 0.07 m."""
+    box_mass: float = 0.35
+    stack_xy: tuple[float, float] = (-0.45, 0.07)
+    """Centre of the top box."""
+    bottom_offset_y: float = -0.04
+    """The bottom box sticks out this far towards the robot (-y) from under the top box."""
+    goal_xy: tuple[float, float] = (0.50, -0.15)
+    """Centre of the goal region near the right end of the table."""
+    goal_radius: float = 0.08
+    path_start_xy: tuple[float, float] = (-0.45, -0.16)
+    """Where the bottom box is once it has been pulled out; clutter 'near the path' lies between here and the goal."""
+    workspace_inset: float = 0.03
+    """The manipulated box's centre must stay this far inside the table edge (else failure:oob)."""
+
+    @property
+    def bottom_xy(self) -> tuple[float, float]:
+        return (self.stack_xy[0], self.stack_xy[1] + self.bottom_offset_y)
+
+
+GEOMETRY = TaskGeometry()
+
+
+class SceneConfigError(ValueError):
+    """A scene request that cannot be built; the message says what to change."""
+
+
+def parse_semantics(text: str) -> tuple[str, ...]:
+    """Turn '2 fragile, 3 durable' into ('fragile', 'fragile', 'durable', 'durable', 'durable')."""
+    classes: list[str] = []
+    for chunk in filter(None, (c.strip() for c in text.split(","))):
+        m = re.fullmatch(r"(\d+)\s+([a-z]+)", chunk)
+        if not m or m.group(2) not in SEMANTIC_CLASSES:
+            raise SceneConfigError(
+                f"cannot read {chunk!r} in semantics {text!r}: write e.g. '2 fragile, 2 soft, 1 durable' "
+                f"(classes: {', '.join(SEMANTIC_CLASSES)})")
+        classes += [m.group(2)] * int(m.group(1))
+    return tuple(classes)
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """Which clutter goes on the table. Validated on construction."""
+
+    n_objects: int = 4
+    """Number of clutter objects, 0 to 8 (the two cereal boxes are extra)."""
+    names: tuple[str, ...] | None = None
+    """Exact catalog names to place (length n_objects). Overrides ``classes``."""
+    classes: tuple[str, ...] | None = None
+    """Semantic class per object (fragile/soft/durable); names are drawn from the catalog per episode.
+    None: any class."""
+    near_path_fraction: float = 0.5
+    """Share of the clutter placed near the straight path from the pulled-out box to the goal."""
+    extra: dict = field(default_factory=dict, compare=False, repr=False)
+
+    def __post_init__(self):
+        if not isinstance(self.n_objects, int) or not 0 <= self.n_objects <= MAX_OBJECTS:
+            raise SceneConfigError(f"n_objects must be an integer from 0 to {MAX_OBJECTS}, got {self.n_objects!r}")
+        if not 0.0 <= self.near_path_fraction <= 1.0:
+            raise SceneConfigError(f"near_path_fraction must be in [0, 1], got {self.near_path_fraction}")
+        catalog = load_catalog()
+        if self.names is not None:
+            object.__setattr__(self, "names", tuple(self.names))
+            unknown = [n for n in self.names if n not in catalog]
+            if unknown:
+                raise SceneConfigError(
+                    f"unknown object name(s) {unknown}; pick from the catalog (`safemanip catalog` lists them)")
+            if len(self.names) != self.n_objects:
+                raise SceneConfigError(f"{len(self.names)} names given for n_objects={self.n_objects}: make them match")
+            if len(set(self.names)) != len(self.names):
+                raise SceneConfigError(f"object names must be distinct, got {list(self.names)}")
+        if self.classes is not None:
+            object.__setattr__(self, "classes", tuple(self.classes))
+            bad = [c for c in self.classes if c not in SEMANTIC_CLASSES]
+            if bad:
+                raise SceneConfigError(f"unknown class(es) {bad}; use {SEMANTIC_CLASSES}")
+            if len(self.classes) != self.n_objects:
+                raise SceneConfigError(
+                    f"{len(self.classes)} classes given for n_objects={self.n_objects}: give one class per object")
+            for c in SEMANTIC_CLASSES:
+                have = sum(o.semantic_class == c for o in catalog.values())
+                want = self.classes.count(c)
+                if want > have:
+                    raise SceneConfigError(f"asked for {want} {c} objects but the catalog has only {have}")
