@@ -1,6 +1,12 @@
 """safemanip: safe, dynamic manipulation in clutter with task-relevant reach-avoid RL."""
 
-import gymnasium as gym
+import os
+
+# Offscreen rendering on a headless CPU machine: EGL through Mesa. Must be chosen before mujoco is
+# imported; a user's own MUJOCO_GL (osmesa, glfw) wins.
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import gymnasium as gym  # noqa: E402
 
 __version__ = "0.1.0"
 

@@ -9,9 +9,13 @@ import numpy as np
 
 
 def make_renderer(model: mujoco.MjModel, height: int, width: int) -> mujoco.Renderer:
-    # EGL works headless with Mesa; respect a user's explicit choice (osmesa, glfw)
-    os.environ.setdefault("MUJOCO_GL", "egl")
-    return mujoco.Renderer(model, height=height, width=width)
+    try:
+        return mujoco.Renderer(model, height=height, width=width)
+    except Exception as err:  # no usable OpenGL: say how to get one
+        raise RuntimeError(
+            f"cannot create an offscreen renderer with MUJOCO_GL={os.environ.get('MUJOCO_GL')!r} ({err}). "
+            "On a headless machine install Mesa's EGL (apt-get install libegl1 libgl1-mesa-dri) and set "
+            "MUJOCO_GL=egl before Python starts, or use MUJOCO_GL=osmesa with libosmesa6; or pass --no-video.") from err
 
 
 def _camera_projection(model, data, camera: str, height: int, width: int):

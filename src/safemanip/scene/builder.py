@@ -65,8 +65,8 @@ def _add_arena(spec: mujoco.MjSpec, geo: TaskGeometry) -> None:
     gx, gy = geo.goal_xy
     world.add_geom(name="goal", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[geo.goal_radius, 0.0008],
                    pos=[gx, gy, 0.0008], rgba=[0.1, 0.8, 0.2, 0.45], contype=0, conaffinity=0)
-    world.add_camera(name="front", pos=[0.0, -1.55, 1.05], xyaxes=[1, 0, 0, 0, 0.55, 0.835], fovy=50)
-    world.add_camera(name="top", pos=[0.0, 0.0, 1.9], xyaxes=[1, 0, 0, 0, 1, 0], fovy=50)
+    world.add_camera(name="front", pos=[0.0, -1.25, 0.95], xyaxes=[1, 0, 0, 0, 0.74, 0.67], fovy=55)
+    world.add_camera(name="top", pos=[0.0, 0.0, 1.45], xyaxes=[1, 0, 0, 0, 1, 0], fovy=50)
 
 
 def _add_top_box(spec: mujoco.MjSpec, geo: TaskGeometry) -> None:
