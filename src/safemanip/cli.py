@@ -23,6 +23,47 @@ def _cmd_catalog(args) -> int:
     return 0
 
 
+def _cmd_train(args) -> int:
+    import shlex
+    from dataclasses import fields
+
+    from safemanip.rl.config import TrainConfig
+    from safemanip.rl.train import train
+
+    if args.resume:
+        from pathlib import Path
+
+        cfg_path = Path(args.resume) / "config.json"
+        if not cfg_path.exists():
+            raise FileNotFoundError(f"--resume {args.resume}: no config.json there; is it a run folder?")
+        cfg = TrainConfig.from_file(cfg_path)
+    else:
+        base = TrainConfig.from_file(args.config).__dict__ if args.config else {}
+        overrides = {f.name: getattr(args, f.name) for f in fields(TrainConfig)
+                     if getattr(args, f.name, None) is not None}
+        if "minutes" in overrides and overrides["minutes"] <= 0:
+            overrides["minutes"] = None
+        cfg = TrainConfig.from_dict({**base, **overrides})  # validated here, before any work starts
+    command = "safemanip " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    run_dir = train(cfg, resume=bool(args.resume), progress=not args.no_progress, command=command)
+    summary = (run_dir / "summary.json").read_text()
+    print(f"run finished: {run_dir}\n{summary}")
+    return 0
+
+
+def _cmd_eval(args) -> int:
+    import json
+
+    from safemanip.evaluation.harness import evaluate_policy_file
+
+    report = evaluate_policy_file(args.policy, episodes=args.episodes, seed=args.seed, workers=args.workers,
+                                  n_objects=args.n_objects, out=args.out)
+    print(report["text"])
+    if args.json:
+        print(json.dumps(report["summary"], indent=1))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="safemanip", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -35,6 +76,35 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--camera", default="front", choices=["front", "top"])
     demo.add_argument("--no-video", action="store_true", help="skip rendering (faster, no OpenGL needed)")
     demo.set_defaults(func=_cmd_demo)
+
+    tr = sub.add_parser("train", help="train a reach-avoid (rarl) or vanilla DDPG policy")
+    tr.add_argument("--config", help="JSON file with TrainConfig fields (flags override it)")
+    tr.add_argument("--resume", metavar="RUN_DIR", help="continue an interrupted run from its last checkpoint")
+    tr.add_argument("--algorithm", choices=["rarl", "vanilla"])
+    tr.add_argument("--n-objects", "--k", dest="n_objects", type=int, help="clutter objects in training scenes (k)")
+    tr.add_argument("--constraints", choices=["conservative", "all"])
+    tr.add_argument("--total-env-steps", dest="total_env_steps", type=int)
+    tr.add_argument("--minutes", type=float, help="wall-clock budget (0: none)")
+    tr.add_argument("--seed", type=int)
+    tr.add_argument("--out", dest="out_dir", help="run folder (checkpoints, logs, policies)")
+    tr.add_argument("--gamma", type=float)
+    tr.add_argument("--gamma-start", dest="gamma_start", type=float)
+    tr.add_argument("--env-steps-per-update", dest="env_steps_per_update", type=float)
+    tr.add_argument("--eval-every-s", dest="eval_every_s", type=float)
+    tr.add_argument("--eval-episodes", dest="eval_episodes", type=int)
+    tr.add_argument("--checkpoint-every-s", dest="checkpoint_every_s", type=float)
+    tr.add_argument("--no-progress", action="store_true")
+    tr.set_defaults(func=_cmd_train)
+
+    ev = sub.add_parser("eval", help="roll a policy out and report success and failures with 95% intervals")
+    ev.add_argument("--policy", required=True, help="policy file (.safetensors) or run folder")
+    ev.add_argument("--episodes", type=int, default=500)
+    ev.add_argument("--seed", type=int, default=0, help="episode seeds are seed*100000 + i")
+    ev.add_argument("--workers", type=int, default=2)
+    ev.add_argument("--n-objects", type=int, help="scene size (default: the policy's k)")
+    ev.add_argument("--out", help="folder for per-episode records (CSV) and summary (JSON)")
+    ev.add_argument("--json", action="store_true", help="also print the JSON summary")
+    ev.set_defaults(func=_cmd_eval)
 
     catalog = sub.add_parser("catalog", help="list the object catalog: name, class, constraint, mass")
     catalog.set_defaults(func=_cmd_catalog)

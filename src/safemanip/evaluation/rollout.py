@@ -1,0 +1,48 @@
+"""Roll a policy out for many independent episodes, in parallel on local cores."""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+
+@dataclass
+class EpisodeRecord:
+    seed: int
+    event: str
+    object: str | None
+    length: int
+    names: list[str]
+    constraints: list[str]
+
+
+def run_episode(env, act, seed: int) -> EpisodeRecord:
+    obs, info = env.reset(seed=seed)
+    while True:
+        obs, _, terminated, truncated, info = env.step(act(obs))
+        if terminated or truncated:
+            break
+    return EpisodeRecord(seed, info["event"], info["object"], info["t"], list(info["names"]), list(info["constraints"]))
+
+
+def _worker(args) -> list[dict]:
+    policy_arrays, env_kwargs, seeds = args
+    from safemanip.rl.collector import env_factory
+    from safemanip.rl.networks import NumpyActor
+
+    actor = NumpyActor(policy_arrays)
+    env = env_factory(env_kwargs)
+    return [asdict(run_episode(env, actor, s)) for s in seeds]
+
+
+def evaluate_actor(actor_arrays: list[np.ndarray], env_kwargs: dict, seeds: list[int], workers: int = 1) -> list[dict]:
+    """Deterministic rollouts of the actor on the given seeds; records in seed order."""
+    if workers <= 1:
+        return _worker((actor_arrays, env_kwargs, seeds))
+    chunks = [seeds[i::workers] for i in range(workers)]
+    with mp.get_context("spawn").Pool(workers) as pool:
+        parts = pool.map(_worker, [(actor_arrays, env_kwargs, c) for c in chunks if c])
+    by_seed = {r["seed"]: r for part in parts for r in part}
+    return [by_seed[s] for s in seeds]

@@ -1,0 +1,129 @@
+"""Training configuration: one dataclass, validated before any work starts."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+
+from safemanip.scene.config import MAX_OBJECTS
+
+
+class ConfigError(ValueError):
+    """A training config that cannot run; the message says what to change."""
+
+
+@dataclass
+class TrainConfig:
+    algorithm: str = "rarl"
+    """'rarl' (discounted reach-avoid backup) or 'vanilla' (DDPG on the return of r = min(l, g))."""
+    n_objects: int = 2
+    """Clutter objects in every training scene (the policy's k)."""
+    constraints: str = "conservative"
+    """'conservative': every object no_contact (paper F^conser); 'all': each object's constraint drawn
+    uniformly from {no_contact, soft_contact, any_contact} every episode."""
+    near_path_fraction: float = 0.5
+    """Share of the clutter placed near the path to the goal."""
+    total_env_steps: int = 2_000_000
+    """Budget in environment steps (the run stops at whichever budget is reached first)."""
+    minutes: float | None = 60.0
+    """Budget in wall-clock minutes (None: no time limit)."""
+    seed: int = 0
+    out_dir: str = "runs/rarl"
+    # -- Table V
+    batch_size: int = 200
+    learning_rate: float = 1e-3
+    buffer_size: int = 100_000
+    gamma: float = 0.99
+    """Discount factor; with ``gamma_start`` set it is annealed from gamma_start to this value."""
+    gamma_start: float | None = None
+    """If set, gamma rises linearly from this value to ``gamma`` over the first half of the budget."""
+    polyak: float = 0.995
+    hidden: tuple[int, ...] = (256, 256, 256)
+    max_episode_steps: int = 300
+    # -- TD3 options
+    twin_critics: bool = True
+    """Two critics, target = min of the two (TD3)."""
+    target_noise: float = 0.2
+    """Std of the target-policy smoothing noise (0 disables it)."""
+    target_noise_clip: float = 0.5
+    policy_delay: int = 2
+    """Actor and target networks are updated every this many critic updates."""
+    # -- exploration and data flow
+    exploration_noise: float = 0.3
+    """Std of the Gaussian noise added to the actor's actions in [-1, 1] during collection."""
+    random_steps: int = 10_000
+    """Environment steps taken with uniformly random actions before the actor is used."""
+    learning_starts: int = 5_000
+    """Environment steps collected before the first update."""
+    env_steps_per_update: float = 4.0
+    """Target data rate: environment steps collected per learner update (the inverse update-to-data ratio)."""
+    n_collectors: int = 1
+    """Rollout worker processes (each simulates ``envs_per_collector`` envs round-robin on one core)."""
+    envs_per_collector: int = 4
+    torch_threads: int = 1
+    """Threads for the learner's PyTorch; the collectors use the other core(s)."""
+    # -- evaluation, logging, checkpoints
+    eval_every_s: float = 120.0
+    eval_episodes: int = 50
+    checkpoint_every_s: float = 120.0
+    log_every_s: float = 10.0
+
+    def __post_init__(self):
+        self.hidden = tuple(int(h) for h in self.hidden)
+        problems = []
+        if self.algorithm not in ("rarl", "vanilla"):
+            problems.append(f"algorithm must be 'rarl' or 'vanilla', got {self.algorithm!r}")
+        if self.constraints not in ("conservative", "all"):
+            problems.append(f"constraints must be 'conservative' or 'all', got {self.constraints!r}")
+        if not 0 <= self.n_objects <= MAX_OBJECTS:
+            problems.append(f"n_objects must be 0..{MAX_OBJECTS}, got {self.n_objects}")
+        if not 0 < self.gamma < 1:
+            problems.append(f"gamma must be in (0, 1), got {self.gamma}")
+        if self.gamma_start is not None and not 0 < self.gamma_start <= self.gamma:
+            problems.append(f"gamma_start must be in (0, gamma], got {self.gamma_start}")
+        if not 0 < self.polyak < 1:
+            problems.append(f"polyak must be in (0, 1), got {self.polyak}")
+        if self.batch_size < 1 or self.buffer_size < self.batch_size:
+            problems.append("batch_size must be >= 1 and buffer_size >= batch_size")
+        if self.total_env_steps < 1 or (self.minutes is not None and self.minutes <= 0):
+            problems.append("the budget must be positive: total_env_steps >= 1 and minutes > 0 (or None)")
+        if self.learning_starts < self.batch_size:
+            problems.append(f"learning_starts ({self.learning_starts}) must be >= batch_size ({self.batch_size})")
+        if self.env_steps_per_update <= 0 or self.n_collectors < 1 or self.envs_per_collector < 1:
+            problems.append("env_steps_per_update > 0, n_collectors >= 1 and envs_per_collector >= 1 are required")
+        if not self.hidden or min(self.hidden) < 1:
+            problems.append(f"hidden must list positive layer widths, got {self.hidden}")
+        if self.policy_delay < 1 or self.torch_threads < 1:
+            problems.append("policy_delay and torch_threads must be >= 1")
+        if problems:
+            raise ConfigError("invalid training config:\n  - " + "\n  - ".join(problems))
+
+    @property
+    def env_kwargs(self) -> dict:
+        return {"n_objects": self.n_objects, "constraints": "random" if self.constraints == "all" else "conservative",
+                "near_path_fraction": self.near_path_fraction, "max_episode_steps": self.max_episode_steps}
+
+    def gamma_at(self, progress: float) -> float:
+        if self.gamma_start is None:
+            return self.gamma
+        frac = min(1.0, max(0.0, progress / 0.5))
+        return self.gamma_start + frac * (self.gamma - self.gamma_start)
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), indent=1)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "TrainConfig":
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ConfigError(f"unknown config key(s) {unknown}; known keys: {sorted(known)}")
+        return cls(**data)
+
+    @classmethod
+    def from_file(cls, path: str | Path) -> "TrainConfig":
+        try:
+            return cls.from_dict(json.loads(Path(path).read_text()))
+        except json.JSONDecodeError as err:
+            raise ConfigError(f"{path} is not valid JSON: {err}") from err
