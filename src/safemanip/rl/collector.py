@@ -36,7 +36,12 @@ def run_collector(worker: int, env_kwargs: dict, seed: int, n_envs: int, data_q,
     actor = None
     buf: dict[str, list] = {k: [] for k in ("obs", "act", "next_obs", "l", "g", "next_l", "next_g", "terminated")}
     episodes: list[tuple[str, int]] = []
+    import multiprocessing as mp
+
+    parent = mp.parent_process()
     while not stop.is_set():
+        if parent is not None and not parent.is_alive():  # the learner was killed: do not linger as an orphan
+            return
         try:  # take the newest weights, drop older ones
             while True:
                 actor_arrays = weights_q.get_nowait()

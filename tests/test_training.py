@@ -1,0 +1,91 @@
+"""Training runs end to end, checkpoints atomically, and resumes after SIGKILL."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from safemanip.rl.checkpoint import find_checkpoint, load_policy, read_checkpoint
+from safemanip.rl.config import ConfigError, TrainConfig
+
+TINY = {"n_objects": 1, "hidden": [32, 32], "batch_size": 32, "buffer_size": 5000, "learning_starts": 300,
+        "random_steps": 300, "eval_episodes": 2, "eval_every_s": 3, "checkpoint_every_s": 2, "log_every_s": 1,
+        "envs_per_collector": 2, "env_steps_per_update": 2.0}
+
+
+def test_bad_configs_fail_before_any_work(tmp_path):
+    with pytest.raises(ConfigError, match="algorithm must be"):
+        TrainConfig(algorithm="ppo")
+    with pytest.raises(ConfigError, match="gamma must be"):
+        TrainConfig(gamma=1.5)
+    with pytest.raises(ConfigError, match="unknown config key"):
+        TrainConfig.from_dict({"learning_rat": 1e-3})
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    with pytest.raises(ConfigError, match="not valid JSON"):
+        TrainConfig.from_file(bad)
+
+
+def test_cli_rejects_a_bad_config_with_a_message(tmp_path):
+    out = subprocess.run([sys.executable, "-m", "safemanip.cli", "train", "--gamma", "2", "--out", str(tmp_path / "r")],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2
+    assert "gamma must be in (0, 1)" in out.stderr
+    assert not (tmp_path / "r").exists()
+
+
+def _start(cmd, log):
+    return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+
+
+@pytest.mark.slow
+def test_sigkill_then_resume_loses_at_most_one_checkpoint_interval(tmp_path):
+    cfg_file = tmp_path / "tiny.json"
+    cfg_file.write_text(json.dumps({**TINY, "minutes": 0.5, "total_env_steps": 10**7}))
+    run = tmp_path / "run"
+    base = [sys.executable, "-m", "safemanip.cli", "train", "--config", str(cfg_file), "--out", str(run), "--no-progress"]
+    with open(tmp_path / "log1.txt", "w") as log:
+        proc = _start(base, log)
+        deadline = time.time() + 90
+        while time.time() < deadline:  # wait for a checkpoint with some learning in it
+            ckpt = find_checkpoint(run)
+            if ckpt is not None and json.loads((ckpt / "meta.json").read_text())["updates"] > 0:
+                break
+            time.sleep(0.5)
+        else:
+            proc.kill()
+            pytest.fail("no checkpoint within 90 s: " + (tmp_path / "log1.txt").read_text()[-2000:])
+        time.sleep(1.0)
+        os.killpg(proc.pid, signal.SIGKILL)  # the whole group, mid-run, no clean-up
+        proc.wait()
+    _, _, meta_before = read_checkpoint(find_checkpoint(run))
+    assert not (run / "summary.json").exists()
+    with open(tmp_path / "log2.txt", "w") as log:
+        resumed = subprocess.run([sys.executable, "-m", "safemanip.cli", "train", "--resume", str(run), "--no-progress"],
+                                 stdout=log, stderr=subprocess.STDOUT, timeout=180)
+    text = (tmp_path / "log2.txt").read_text()
+    assert resumed.returncode == 0, text[-2000:]
+    assert "resuming" in text
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["env_steps"] > meta_before["env_steps"]
+    assert summary["updates"] > meta_before["updates"]
+    assert meta_before["elapsed_s"] >= 2.0  # the checkpoint carried the work done before the kill
+    actor, meta = load_policy(run / "policy.safetensors")
+    assert meta["k"] == 1 and meta["updates"] == summary["updates"]
+
+
+def test_policy_file_is_validated(tmp_path):
+    from safetensors.numpy import save_file
+    import numpy as np
+
+    fake = tmp_path / "fake.safetensors"
+    save_file({"x": np.zeros(3, np.float32)}, str(fake))
+    with pytest.raises(ValueError, match="not a safemanip policy"):
+        load_policy(fake)
+    with pytest.raises(ValueError, match="no policy file"):
+        load_policy(tmp_path / "missing.safetensors")
