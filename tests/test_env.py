@@ -1,0 +1,534 @@
+"""The ``safemanip/SlideOut-v0`` Gymnasium env: API conformance, determinism, events on hand-placed
+MuJoCo states, the tablecloth effect, the scripted controller, instability handling and rendering."""
+
+from __future__ import annotations
+
+import os
+import warnings
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import safemanip  # noqa: F401  (registers the env)
+from safemanip.control.scripted import ScriptedController
+from safemanip.env.observation import ROBOT_DIM, SLOT_DIM, observation_dim
+from safemanip.env.slide_out import EVENTS, SlideOutEnv
+from safemanip.scene.catalog import CONSTRAINT_TYPES, load_catalog
+from safemanip.scene.config import GEOMETRY, SceneConfigError
+
+HX, HY, HZ = GEOMETRY.box_half_extents
+ZERO = np.zeros(3, dtype=np.float32)
+
+
+def place_object(env, i, xy, z=0.0005, quat=(1.0, 0.0, 0.0, 0.0)):
+    """Put object ``i`` at rest at (x, y, z) with orientation ``quat`` and recompute the kinematics."""
+    d, idx = env.data, env.index
+    a, v = idx.object_qpos[i], idx.object_qvel[i]
+    d.qpos[a:a + 7] = (*xy, z, *quat)
+    d.qvel[v:v + 6] = 0.0
+    mujoco.mj_forward(env.model, d)
+
+
+def beside_bottom_box(env, radius, gap):
+    """Base position of a cylinder of ``radius`` standing ``gap`` m off the bottom box's +x face."""
+    bx, by, _ = env.data.xpos[env.index.bottom_box_body]
+    return (bx + HX + radius + gap, by)
+
+
+def rollout(env, seed, actions, options=None):
+    obs, info = env.reset(seed=seed, options=options)
+    out = [obs]
+    for a in actions:
+        obs, *_ = env.step(a)
+        out.append(obs)
+    return np.stack(out)
+
+
+# ================================================================== API
+
+
+def test_registered_and_gym_make_works():
+    assert "safemanip/SlideOut-v0" in gym.registry
+    env = gym.make("safemanip/SlideOut-v0", n_objects=3)
+    obs, info = env.reset(seed=0)
+    assert obs.shape == (observation_dim(3),) == env.observation_space.shape
+    assert isinstance(env.unwrapped, SlideOutEnv)
+    assert len(info["names"]) == 3 and info["event"] == "running" and info["t"] == 0
+    env.close()
+
+
+def test_check_env_passes_on_the_unwrapped_env():
+    env = gym.make("safemanip/SlideOut-v0", n_objects=3)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env.unwrapped)
+    assert not [str(w.message) for w in caught]
+    env.close()
+
+
+@pytest.mark.parametrize("n", [0, 1, 8])
+def test_check_env_passes_for_any_object_count(n):
+    check_env(SlideOutEnv(n_objects=n), skip_render_check=True)
+
+
+def test_spaces():
+    env = SlideOutEnv(n_objects=2)
+    assert env.action_space.shape == (3,) and env.action_space.dtype == np.float32
+    assert np.all(env.action_space.low == -1) and np.all(env.action_space.high == 1)
+    assert env.observation_space.shape == (ROBOT_DIM + 2 * SLOT_DIM,) and env.observation_space.dtype == np.float32
+
+
+def test_same_seed_same_observations():
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, size=(30, 3)).astype(np.float32) * np.array([0.3, 0.3, 0.1], dtype=np.float32)
+    env = SlideOutEnv(n_objects=4)
+    first = rollout(env, 3, actions)
+    other = rollout(env, 4, actions)  # a different episode on the same cached simulation in between
+    again = rollout(env, 3, actions)
+    fresh = rollout(SlideOutEnv(n_objects=4), 3, actions)
+    assert np.array_equal(first, again)
+    assert np.array_equal(first, fresh)
+    assert not np.array_equal(first[0], other[0])  # the seed matters
+
+
+def test_observations_stay_in_the_space_during_a_rollout():
+    env = SlideOutEnv(n_objects=8)
+    ctrl = ScriptedController()
+    for seed in range(3):
+        obs, info = env.reset(seed=seed)
+        ctrl.reset()
+        assert env.observation_space.contains(obs)
+        for _ in range(60):
+            obs, reward, terminated, truncated, info = env.step(ctrl.act(info, env))
+            assert obs.dtype == np.float32 and env.observation_space.contains(obs)
+            assert info["event"] in EVENTS
+            if terminated or truncated:
+                break
+
+
+def test_observation_layout_matches_the_simulation():
+    env = SlideOutEnv(n_objects=3, constraints=("soft_contact", "no_contact", "any_contact"))
+    obs, info = env.reset(seed=5)
+    d, idx = env.data, env.index
+    np.testing.assert_allclose(obs[0:3], env.hand.ee_position(d, env.binding), atol=1e-6)
+    np.testing.assert_allclose(obs[6:9], d.xpos[idx.bottom_box_body], atol=1e-6)
+    np.testing.assert_allclose(obs[12:15], d.xpos[idx.top_box_body], atol=1e-6)
+    slots = obs[ROBOT_DIM:].reshape(3, SLOT_DIM)
+    np.testing.assert_allclose(slots[:, 0:3], d.xpos[idx.object_bodies], atol=1e-6)
+    assert slots[:, 6:9].tolist() == [[0, 1, 0], [1, 0, 0], [0, 0, 1]]
+    assert info["constraints"] == ("soft_contact", "no_contact", "any_contact")
+
+
+def test_initial_states_are_safe_and_not_done():
+    env = SlideOutEnv(n_objects=8)
+    for seed in range(10):
+        _, info = env.reset(seed=seed)
+        assert info["l"] < 0 < info["g"], info
+        assert info["margins"]["l1"] < 0 and info["margins"]["g_dyn"] == pytest.approx(0.1, abs=1e-3)
+        assert np.all(env.object_distances() > env.thresholds.collision)
+
+
+def test_do_nothing_is_truncated_not_terminated():
+    env = SlideOutEnv(n_objects=4, max_episode_steps=5)
+    env.reset(seed=1)
+    for t in range(1, 6):
+        _, reward, terminated, truncated, info = env.step(ZERO)
+        assert not terminated
+        assert truncated == (t == 5)
+        assert info["event"] == ("timeout" if t == 5 else "running")
+        assert info["t"] == t
+        assert reward == pytest.approx(min(info["l"], info["g"]))
+
+
+def test_gym_make_max_episode_steps_truncates_with_timeout():
+    """gym.make's own limit (a TimeLimit wrapper) must not report a truncated step as 'running'."""
+    env = gym.make("safemanip/SlideOut-v0", n_objects=2, max_episode_steps=5)
+    env.reset(seed=0)
+    results = [env.step(ZERO) for _ in range(5)]
+    assert [r[2] for r in results] == [False] * 5  # terminated
+    assert [r[3] for r in results] == [False] * 4 + [True]  # truncated
+    assert results[-1][4]["event"] == "timeout"
+    env.close()
+
+
+def test_constraint_modes():
+    catalog = load_catalog()
+    env = SlideOutEnv(n_objects=6)
+    _, info = env.reset(seed=2)
+    assert info["constraints"] == tuple(catalog[n].constraint for n in info["names"])
+    env = SlideOutEnv(n_objects=6, constraints="conservative")
+    _, info = env.reset(seed=2)
+    assert info["constraints"] == ("no_contact",) * 6
+    assert all(k.startswith("g_hard:") for k in info["margins"] if ":" in k) and len(info["margins"]) == 4 + 6
+    env = SlideOutEnv(n_objects=6, constraints="random")
+    seen = set()
+    for seed in range(5):
+        _, info = env.reset(seed=seed)
+        seen.update(info["constraints"])
+    assert seen == set(CONSTRAINT_TYPES)
+    # per-episode override
+    _, info = env.reset(seed=0, options={"constraints": ("any_contact",) * 6})
+    assert info["constraints"] == ("any_contact",) * 6 and len(info["margins"]) == 4
+
+
+def test_classes_and_names_requests():
+    catalog = load_catalog()
+    env = SlideOutEnv(n_objects=5, classes="2 fragile, 3 durable")
+    for seed in range(3):
+        _, info = env.reset(seed=seed)
+        assert [catalog[n].semantic_class for n in info["names"]] == ["fragile"] * 2 + ["durable"] * 3
+        assert len(set(info["names"])) == 5
+    env = SlideOutEnv(n_objects=2, names=["red mug", "toy sheep"])
+    _, info = env.reset(seed=0)
+    assert info["names"] == ("red mug", "toy sheep")
+    _, info = env.reset(seed=0, options={"names": ["soda can", "tennis ball"]})
+    assert info["names"] == ("soda can", "tennis ball")
+    with pytest.raises(ValueError, match="must hold 2 names"):
+        env.reset(seed=0, options={"names": ["soda can"]})
+
+
+@pytest.mark.parametrize("kwargs,error,match", [
+    ({"constraints": "bogus"}, ValueError, "constraints must be one of"),
+    ({"constraints": ("no_contact",)}, ValueError, "one constraint per object"),
+    ({"constraints": ("no_contact", "gentle")}, ValueError, "one constraint per object"),
+    ({"render_mode": "human"}, ValueError, "render_mode must be None or 'rgb_array'"),
+    ({"max_episode_steps": 0}, ValueError, "max_episode_steps"),
+    ({"max_step": 0.0}, ValueError, "max_step"),
+    ({"n_objects": 9}, SceneConfigError, "n_objects must be an integer from 0 to 8"),
+    ({"n_objects": -1}, SceneConfigError, "n_objects must be an integer from 0 to 8"),
+    ({"classes": "2 fragile, 1 soft"}, SceneConfigError, "3 classes given for n_objects=2"),
+    ({"classes": "2 delicate"}, SceneConfigError, "cannot read"),
+    ({"names": ["red mug", "unicorn"]}, SceneConfigError, "unknown object name"),
+])
+def test_bad_env_kwargs(kwargs, error, match):
+    kwargs = {"n_objects": 2, **kwargs}
+    with pytest.raises(error, match=match):
+        SlideOutEnv(**kwargs)
+
+
+# ================================================================== margins on hand-placed states
+
+
+def test_fragile_object_within_threshold_fails_hard():
+    env = SlideOutEnv(n_objects=1, names=["glass jar"])  # a 4.5 cm radius cylinder
+    env.reset(seed=0)
+    place_object(env, 0, beside_bottom_box(env, 0.045, 0.005))
+    assert env.object_distances()[0] == pytest.approx(0.005, abs=1e-4)
+    _, reward, terminated, truncated, info = env.step(ZERO)
+    assert info["margins"]["g_hard:0:glass jar"] == pytest.approx(-0.005, abs=2e-4)
+    assert info["g"] == pytest.approx(info["margins"]["g_hard:0:glass jar"])
+    assert (info["event"], info["object"], info["object_id"]) == ("failure:hard", "glass jar", 0)
+    assert terminated and not truncated and reward < 0
+
+
+def test_fragile_object_penetrating_the_box_has_negative_g_hard():
+    env = SlideOutEnv(n_objects=1, names=["glass jar"])
+    env.reset(seed=0)
+    place_object(env, 0, beside_bottom_box(env, 0.045, -0.004))
+    terms = env._margins(env.scene_state())
+    assert terms["distances"][0] == pytest.approx(-0.004, abs=1e-4)
+    assert terms["objects"][0] == pytest.approx(-0.014, abs=1e-4)
+    assert terms["g"] < 0
+    *_, terminated, _, info = env.step(ZERO)
+    assert terminated and info["event"] == "failure:hard" and info["object"] == "glass jar"
+
+
+def test_fragile_object_just_outside_the_threshold_is_safe():
+    env = SlideOutEnv(n_objects=1, names=["glass jar"])
+    env.reset(seed=0)
+    place_object(env, 0, beside_bottom_box(env, 0.045, 0.02))
+    *_, terminated, truncated, info = env.step(ZERO)
+    assert info["margins"]["g_hard:0:glass jar"] == pytest.approx(0.01, abs=2e-4)
+    assert info["event"] == "running" and not terminated and not truncated
+
+
+@pytest.mark.parametrize("speed_action,event", [(1.0, "failure:soft"), (0.1, "running")])
+def test_soft_object_fails_only_on_a_fast_contact(speed_action, event):
+    """The box slides past a soda can 5 mm away: at ~2 m/s that breaks g_soft, at ~0.2 m/s it does not."""
+    env = SlideOutEnv(n_objects=1, names=["soda can"])  # soft, 3.3 cm radius
+    env.reset(seed=0)
+    place_object(env, 0, beside_bottom_box(env, 0.033, 0.005))
+    _, _, terminated, _, info = env.step(np.array([0.0, speed_action, 0.0], dtype=np.float32))
+    state = env.scene_state()
+    rel_speed = float(np.linalg.norm(state.bottom_vel - state.obj_vel[0]))
+    assert env.object_distances()[0] == pytest.approx(0.005, abs=2e-4)  # still alongside, within the threshold
+    g_soft = info["margins"]["g_soft:0:soda can"]
+    assert g_soft == pytest.approx(max(0.005 - 0.01, 1.0 - rel_speed), abs=2e-4)
+    assert info["event"] == event
+    if event == "failure:soft":
+        assert rel_speed > 1.5 and g_soft < 0 and terminated and info["object"] == "soda can"
+    else:
+        assert rel_speed < 0.5 and g_soft > 0.5 and not terminated and info["object"] is None
+
+
+def test_same_contact_with_a_fragile_object_fails_even_when_slow():
+    env = SlideOutEnv(n_objects=1, names=["glass jar"])
+    env.reset(seed=0)
+    place_object(env, 0, beside_bottom_box(env, 0.045, 0.005))
+    *_, terminated, _, info = env.step(np.array([0.0, 0.1, 0.0], dtype=np.float32))
+    assert terminated and info["event"] == "failure:hard"
+
+
+def test_durable_object_has_no_margin_at_all():
+    env = SlideOutEnv(n_objects=1, names=["wooden block"])  # durable: any_contact
+    _, info = env.reset(seed=0)
+    assert info["constraints"] == ("any_contact",)
+    place_object(env, 0, beside_bottom_box(env, 0.04, -0.004))  # penetrating
+    terms = env._margins(env.scene_state())
+    assert np.isinf(terms["objects"][0])
+    *_, terminated, _, info = env.step(np.array([0.0, 1.0, 0.0], dtype=np.float32))  # and hit fast
+    assert set(info["margins"]) == {"l1", "l2", "g_dyn", "g_oob"}
+    assert info["g"] == pytest.approx(min(info["margins"]["g_dyn"], info["margins"]["g_oob"]))
+    assert info["event"] == "running" and not terminated
+
+
+def test_conservative_mode_turns_a_durable_object_into_a_hard_constraint():
+    env = SlideOutEnv(n_objects=1, names=["wooden block"], constraints="conservative")
+    env.reset(seed=0)
+    place_object(env, 0, beside_bottom_box(env, 0.04, 0.005))
+    *_, terminated, _, info = env.step(ZERO)
+    assert terminated and info["event"] == "failure:hard" and info["object"] == "wooden block"
+
+
+def test_hand_palm_counts_as_part_of_the_manipulated_body():
+    env = SlideOutEnv(n_objects=1, names=["glass jar"])
+    env.reset(seed=0)
+    palm = env.model.geom("hand_palm").id
+    px, py, _ = env.data.geom_xpos[palm]
+    # in front of the palm (-y side), 5 mm from its face; the box is farther away
+    place_object(env, 0, (px, py - 0.03 - 0.045 - 0.005))
+    assert env.object_distances()[0] == pytest.approx(0.005, abs=2e-4)
+    *_, info = env.step(ZERO)
+    assert info["event"] == "failure:hard"
+
+
+def test_top_box_teleported_fails_dyn():
+    env = SlideOutEnv(n_objects=0)
+    env.reset(seed=0)
+    adr = env.index.top_box_qpos
+    env.data.qpos[adr] += 0.2
+    mujoco.mj_forward(env.model, env.data)
+    _, reward, terminated, _, info = env.step(ZERO)
+    assert info["margins"]["g_dyn"] == pytest.approx(-0.1, abs=0.01)
+    assert info["g"] == pytest.approx(info["margins"]["g_dyn"])
+    assert (info["event"], info["object"]) == ("failure:dyn", None)
+    assert terminated and reward == pytest.approx(min(info["l"], info["g"]))
+
+
+def test_flipped_top_box_fails_dyn():
+    env = SlideOutEnv(n_objects=0)
+    env.reset(seed=0)
+    adr = env.index.top_box_qpos
+    env.data.qpos[adr + 3:adr + 7] = (0.0, 1.0, 0.0, 0.0)  # upside down, same place
+    mujoco.mj_forward(env.model, env.data)
+    *_, terminated, _, info = env.step(ZERO)
+    assert info["margins"]["g_dyn"] == pytest.approx(-1.5, abs=0.01)  # up-axis z = -1, minus 0.5
+    assert terminated and info["event"] == "failure:dyn"
+
+
+def test_the_worst_margin_names_the_failure():
+    env = SlideOutEnv(n_objects=1, names=["glass jar"])
+    env.reset(seed=0)
+    place_object(env, 0, beside_bottom_box(env, 0.045, 0.005))  # g_hard = -0.005
+    env.data.qpos[env.index.top_box_qpos + 1] += 0.25  # g_dyn = -0.15 (away from the jar)
+    mujoco.mj_forward(env.model, env.data)
+    *_, info = env.step(ZERO)
+    assert info["margins"]["g_hard:0:glass jar"] < 0 and info["margins"]["g_dyn"] < info["margins"]["g_hard:0:glass jar"]
+    assert info["event"] == "failure:dyn" and info["object"] is None
+
+
+def test_box_off_the_table_edge_fails_oob():
+    env = SlideOutEnv(n_objects=0)
+    env.reset(seed=0)
+    qx = env.binding.qpos_adr[0]
+    x0 = env.data.xpos[env.index.bottom_box_body][0]
+    env.data.qpos[qx] += 0.785 - x0  # box centre 1.5 cm beyond the 3 cm workspace inset
+    mujoco.mj_forward(env.model, env.data)
+    *_, terminated, _, info = env.step(ZERO)
+    assert info["margins"]["g_oob"] == pytest.approx(-0.015, abs=2e-3)
+    assert terminated and info["event"] == "failure:oob"
+
+
+# ================================================================== dynamics
+
+
+def _pull_and_settle(action_y, pull_steps=16, settle_steps=20):
+    env = SlideOutEnv(n_objects=0)
+    env.reset(seed=0)
+    start = env.data.xpos[env.index.top_box_body, :2].copy()
+    for _ in range(pull_steps):  # keep pulling whatever the event: we measure the physics
+        env.step(np.array([0.0, action_y, 0.0], dtype=np.float32))
+    for _ in range(settle_steps):
+        env.step(ZERO)
+    return env, float(np.linalg.norm(env.data.xpos[env.index.top_box_body, :2] - start))
+
+
+@pytest.mark.slow
+def test_slow_pull_drags_the_top_box_along():
+    env, moved = _pull_and_settle(-0.25)  # 0.5 m/s
+    assert moved > 0.2, moved  # measured 0.38 m
+
+
+@pytest.mark.slow
+def test_fast_pull_leaves_the_top_box_behind():
+    env, moved = _pull_and_settle(-1.0)  # 2 m/s: the tablecloth trick
+    assert moved < 0.06, moved  # measured 0.03 m
+    assert env.data.xmat[env.index.top_box_body, 8] > 0.99  # still upright
+    assert env.scene_state().bottom_pos[1] < -0.3  # the bottom box really was pulled out
+
+
+@pytest.mark.slow
+def test_fast_pull_gets_the_box_out_without_failing():
+    env = SlideOutEnv(n_objects=0)
+    env.reset(seed=0)
+    for _ in range(6):
+        *_, terminated, _, info = env.step(np.array([0.0, -1.0, 0.0], dtype=np.float32))
+        assert not terminated, info
+    assert info["margins"]["l1"] > 0 and info["margins"]["g_dyn"] > 0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_scripted_controller_succeeds_on_an_empty_table(seed):
+    env = SlideOutEnv(n_objects=0)
+    ctrl = ScriptedController()
+    obs, info = env.reset(seed=seed)
+    ctrl.reset()
+    for _ in range(env.max_episode_steps):
+        obs, reward, terminated, truncated, info = env.step(ctrl.act(info, env))
+        if terminated or truncated:
+            break
+    assert info["event"] == "success" and info["is_success"]
+    assert terminated and not truncated
+    assert info["l"] > 0 and info["g"] >= 0 and reward == pytest.approx(min(info["l"], info["g"]))
+    assert info["t"] < 100
+
+
+def _make_unstable(env, how):
+    d, idx = env.data, env.index
+    if how == "nan qvel (object)":
+        d.qvel[idx.object_qvel[0]] = np.nan
+    elif how == "nan qvel (top box)":
+        d.qvel[idx.top_box_qvel + 2] = np.nan
+    elif how == "huge qvel":
+        d.qvel[idx.top_box_qvel] = 1e12
+    elif how == "nan qpos":
+        d.qpos[idx.object_qpos[0] + 2] = np.nan
+    elif how == "nan force (bad qacc)":
+        d.qfrc_applied[idx.object_qvel[0]] = np.nan  # passes the qpos/qvel checks, poisons qacc
+
+
+@pytest.mark.parametrize("how", ["nan qvel (object)", "nan qvel (top box)", "huge qvel", "nan qpos", "nan force (bad qacc)"])
+def test_unstable_simulation_ends_the_episode(how, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # MuJoCo logs its warnings to ./MUJOCO_LOG.TXT
+    env = SlideOutEnv(n_objects=2)
+    env.reset(seed=1)
+    env.step(ZERO)
+    _make_unstable(env, how)
+    obs, reward, terminated, truncated, info = env.step(ZERO)
+    assert info["event"] == "unstable", f"{how}: event {info['event']!r}"
+    assert terminated and not truncated
+    assert np.all(np.isfinite(obs)) and env.observation_space.contains(obs) and np.isfinite(reward)
+
+
+# ================================================================== rendering
+
+
+@pytest.fixture(scope="module")
+def render_env():
+    env = SlideOutEnv(n_objects=6, render_mode="rgb_array")
+    env.reset(seed=0)
+    try:
+        env.render()
+    except Exception as err:  # noqa: BLE001  (no OpenGL: skip, do not fail)
+        pytest.skip(f"cannot create an offscreen MuJoCo renderer with MUJOCO_GL={os.environ.get('MUJOCO_GL')!r} "
+                    f"(headless rendering needs Mesa's libEGL and MUJOCO_GL=egl): {err}")
+    yield env
+    env.close()
+
+
+def _segmentation(env, camera):
+    renderer = env._get_renderer(*env.render_size)
+    renderer.enable_segmentation_rendering()
+    try:
+        renderer.update_scene(env.data, camera=camera)
+        return renderer.render()
+    finally:
+        renderer.disable_segmentation_rendering()
+
+
+def _object_mask(env, seg, i):
+    return (seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)) & np.isin(seg[..., 0], env.index.object_geoms[i])
+
+
+@pytest.mark.parametrize("camera", ["front", "top"])
+def test_render_returns_an_image(render_env, camera):
+    img = render_env.render() if camera == "front" else render_env.render_camera(camera)
+    assert img.shape == (480, 640, 3) and img.dtype == np.uint8
+    assert img.std() > 10  # not a blank frame
+    assert len(np.unique(img.reshape(-1, 3), axis=0)) > 100
+
+
+def test_render_cameras_differ_and_custom_size(render_env):
+    front, top = render_env.render_camera("front"), render_env.render_camera("top")
+    assert np.abs(front.astype(int) - top.astype(int)).mean() > 10
+    small = render_env.render_camera("top", height=120, width=160)
+    assert small.shape == (120, 160, 3)
+    assert render_env.render_camera("top").shape == (480, 640, 3)  # and back
+
+
+def test_render_is_none_without_render_mode():
+    env = SlideOutEnv(n_objects=0)
+    env.reset(seed=0)
+    assert env.render() is None
+
+
+@pytest.mark.parametrize("camera", ["front", "top"])
+def test_object_boxes_cover_every_object_inside_the_image(render_env, camera):
+    from safemanip.env.render import body_box_corners, project_points
+
+    env = render_env
+    h, w = env.render_size
+    for seed in range(3):
+        env.reset(seed=seed)
+        boxes = env.object_boxes_2d(camera)
+        assert set(boxes) == set(range(6)) | {"box_bottom", "box_top"}
+        seg = _segmentation(env, camera)
+        for i in range(6):
+            x0, y0, x1, y1 = boxes[i]
+            assert 0 <= x0 < x1 <= w - 1 and 0 <= y0 < y1 <= h - 1, boxes[i]
+            # the whole object is in view (no clipping happened) ...
+            uv = project_points(env.model, env.data, camera,
+                                body_box_corners(env.model, env.data, int(env.index.object_bodies[i])), h, w)
+            assert np.all((uv >= 0) & (uv <= [w - 1, h - 1])), f"object {i} partly outside the {camera} image"
+            # ... and every rendered pixel of the object lies inside its box
+            ys, xs = np.nonzero(_object_mask(env, seg, i))
+            if len(xs):
+                assert xs.min() >= x0 - 1 and xs.max() <= x1 + 1 and ys.min() >= y0 - 1 and ys.max() <= y1 + 1
+
+
+@pytest.mark.parametrize("camera", ["front", "top"])
+def test_object_at_the_image_centre(render_env, camera):
+    env = SlideOutEnv(n_objects=1, names=["glass jar"], render_mode="rgb_array")  # 14 cm tall
+    env.reset(seed=0)
+    try:
+        cam = env.model.camera(camera).id
+        pos, forward = env.data.cam_xpos[cam], -env.data.cam_xmat[cam].reshape(3, 3)[:, 2]
+        t = (0.07 - pos[2]) / forward[2]  # the centre ray at the jar's mid-height
+        place_object(env, 0, pos[:2] + t * forward[:2])
+        h, w = env.render_size
+        x0, y0, x1, y1 = env.object_boxes_2d(camera)[0]
+        assert x0 <= w / 2 <= x1 and y0 <= h / 2 <= y1
+        assert 10 < x1 - x0 < 200 and 10 < y1 - y0 < 200
+        seg = _segmentation(env, camera)
+        assert _object_mask(env, seg, 0)[h // 2, w // 2]  # the renderer agrees: the jar is at the centre
+    finally:
+        env.close()
+
+
+def test_check_env_with_rendering(render_env):
+    env = gym.make("safemanip/SlideOut-v0", n_objects=2, render_mode="rgb_array")
+    check_env(env.unwrapped)
+    env.close()
