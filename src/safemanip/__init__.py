@@ -14,5 +14,6 @@ if "safemanip/SlideOut-v0" not in gym.registry:
     gym.register(
         id="safemanip/SlideOut-v0",
         entry_point="safemanip.env.slide_out:SlideOutEnv",
-        max_episode_steps=None,  # the env truncates itself at max_episode_steps (default 300)
+        max_episode_steps=None,  # the env truncates itself at its max_episode_steps kwarg (default 300)
+        additional_wrappers=(gym.envs.registration.WrapperSpec("TimeoutEvent", "safemanip.env.slide_out:TimeoutEvent", {}),),
     )

@@ -25,6 +25,8 @@ from safemanip.scene.placement import sample_placement
 CONSTRAINT_MODES = ("ground_truth", "conservative", "random")
 EVENTS = ("running", "success", "failure:dyn", "failure:hard", "failure:soft", "failure:oob", "timeout", "unstable")
 DISTANCE_CAP = 0.3  # geom distances saturate here: far objects do not need an exact value
+_BAD_STATE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
+                       mujoco.mjtWarning.mjWARN_BADQACC)
 _MANIPULATED_REACH = 0.22  # bounding radius of the held box and palm around the box centre
 
 
@@ -106,8 +108,6 @@ class SlideOutEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         options = options or {}
-        if self.spec is not None and self.spec.max_episode_steps:
-            self.max_episode_steps = int(self.spec.max_episode_steps)
         rng = self.np_random
         names = tuple(options["names"]) if "names" in options else self._choose_names(rng)
         if len(names) != self.config.n_objects:
@@ -134,7 +134,6 @@ class SlideOutEnv(gym.Env):
         self._margin_names = {i: f"{'g_soft' if self._object_is_soft[i] else 'g_hard'}:{i}:{name}"
                               for i, name in enumerate(self.names) if self._object_checked[i]}
         self._t = 0
-        self._warnings_at_reset = int(d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number)
         state = self.scene_state()
         self.ee_path = [state.ee_pos.copy()]
         self.box_path = [state.bottom_pos.copy()]
@@ -146,9 +145,13 @@ class SlideOutEnv(gym.Env):
         a = np.clip(np.asarray(action, dtype=np.float64).reshape(3), -1.0, 1.0)
         m, d = self.model, self.data
         self.hand.command_velocity(d, self.binding, a * (self.max_step / CONTROL_DT))
+        for w in _BAD_STATE_WARNINGS:
+            d.warning[w].number = 0
         mujoco.mj_step(m, d, nstep=self.n_substeps)
         self._t += 1
-        unstable = (int(d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number) > self._warnings_at_reset
+        # MuJoCo resets the whole MjData on a bad qpos/qvel/qacc and carries on, so the warning counters are
+        # the only trace of it; a NaN that slipped past them is caught by the finiteness checks
+        unstable = (any(d.warning[w].number for w in _BAD_STATE_WARNINGS)
                     or not np.isfinite(d.qpos).all() or not np.isfinite(d.qvel).all())
         if unstable:
             state = self._last_state
@@ -293,3 +296,16 @@ class SlideOutEnv(gym.Env):
         if self._renderer is not None:
             self._renderer[1].close()
             self._renderer = None
+
+
+class TimeoutEvent(gym.Wrapper):
+    """Applied by ``gym.make`` outside its TimeLimit: a time-limit truncation is reported as event 'timeout'.
+
+    ``gym.make(..., max_episode_steps=n)`` consumes that argument itself, so the env cannot see it.
+    """
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        if truncated and not terminated and info.get("event") == "running":
+            info = {**info, "event": "timeout"}
+        return obs, reward, terminated, truncated, info

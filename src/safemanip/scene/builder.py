@@ -51,7 +51,7 @@ def _add_arena(spec: mujoco.MjSpec, geo: TaskGeometry) -> None:
     world = spec.worldbody
     world.add_light(name="sun", pos=[0, -0.4, 2.0], dir=[0, 0.2, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL, castshadow=0,
                     diffuse=[0.8, 0.8, 0.8], ambient=[0.35, 0.35, 0.35])
-    world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[3, 3, 0.1], pos=[0, 0, -0.8],
+    world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[8, 8, 0.1], pos=[0, 0, -0.8],
                    rgba=[0.35, 0.35, 0.38, 1], contype=0, conaffinity=0)
     # table friction wins over every object's thanks to its higher priority
     world.add_geom(name="table", type=mujoco.mjtGeom.mjGEOM_BOX, size=[tx, ty, 0.025], pos=[0, 0, -0.025],
@@ -65,7 +65,7 @@ def _add_arena(spec: mujoco.MjSpec, geo: TaskGeometry) -> None:
     gx, gy = geo.goal_xy
     world.add_geom(name="goal", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[geo.goal_radius, 0.0008],
                    pos=[gx, gy, 0.0008], rgba=[0.1, 0.8, 0.2, 0.45], contype=0, conaffinity=0)
-    world.add_camera(name="front", pos=[0.0, -1.25, 0.95], xyaxes=[1, 0, 0, 0, 0.74, 0.67], fovy=55)
+    world.add_camera(name="front", pos=[0.0, -1.15, 0.95], xyaxes=[1, 0, 0, 0, 0.637, 0.771], fovy=58)
     world.add_camera(name="top", pos=[0.0, 0.0, 1.45], xyaxes=[1, 0, 0, 0, 1, 0], fovy=50)
 
 

@@ -6,6 +6,7 @@ from the robot, z up. The robot stands on the -y side.
 
 from __future__ import annotations
 
+import numbers
 import re
 from dataclasses import dataclass, field
 
@@ -76,6 +77,8 @@ class SceneConfig:
     extra: dict = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self):
+        if isinstance(self.n_objects, numbers.Integral) and not isinstance(self.n_objects, bool):
+            object.__setattr__(self, "n_objects", int(self.n_objects))
         if not isinstance(self.n_objects, int) or not 0 <= self.n_objects <= MAX_OBJECTS:
             raise SceneConfigError(f"n_objects must be an integer from 0 to {MAX_OBJECTS}, got {self.n_objects!r}")
         if not 0.0 <= self.near_path_fraction <= 1.0:
