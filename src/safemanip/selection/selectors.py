@@ -1,0 +1,210 @@
+"""Object and constraint selectors behind the protocols of ``selection/base.py``, and their registry.
+
+What "nearest" means here
+-------------------------
+Every metric selector ranks objects by the **horizontal (x-y) distance between the object's centre
+(its body origin) and the centre of the manipulated (bottom) cereal box**, nearest first, ties broken
+by object id. The box, not the end-effector, is what hits things in this task: the hand holds the box
+at its near edge, so the box's centre is the better proxy for "about to be touched". Heights are
+ignored because every object stands on the same table top. (The semantic selectors in
+``safemanip.semantics.selectors`` order their candidates for the backend by distance to the
+end-effector instead; their fallback is the same box-centred dynamic kNN as here.)
+
+Object selectors (``OBJECT_SELECTORS``)
+  ``static-knn``   the k nearest at t = 0, fixed for the episode (never re-picks);
+  ``dynamic-knn``  the k nearest, recomputed every ``interval`` control steps (default 4, the paper's);
+  ``privileged``   the k nearest objects whose ground-truth class is fragile (re-picked on the same
+                   schedule as dynamic-knn), then the nearest others if there are fewer than k fragile
+                   ones. Reads ``SceneView.privileged_classes``; an oracle, not a deployable method;
+  ``full``         every object in id order: the layout a k == N full-state policy was trained on;
+  ``dynamic-vlm``  ``semantics.selectors.DynamicVLMSelector`` on a semantic or OpenAI-compatible backend.
+
+Constraint selectors (``CONSTRAINT_SELECTORS``), each assigning one type per object at t = 0:
+  ``conservative`` no_contact for every object (the paper's F^conser);
+  ``ground-truth`` the judge's own constraint per object (from ``privileged_classes``);
+  ``vlm``          ``semantics.selectors.VLMConstraintSelector`` (ConstraintVLM).
+
+The registries map a name to a factory taking a ``SelectorOptions``; adding a selector means adding
+an entry there (no import-time registration).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+from safemanip.scene.catalog import CONSTRAINT_OF_CLASS
+from safemanip.selection.base import ConstraintSelector, ObjectSelector, SceneView, nearest_ids
+
+DEFAULT_INTERVAL = 4  # paper Sec. V: Dynamic-kNN and Dynamic-VLM are queried every four time steps
+
+
+def _due(last_t: int | None, t: int, interval: int) -> bool:
+    # a t smaller than the last pick means a new episode began without reset(): pick again
+    return last_t is None or t - last_t >= interval or t < last_t
+
+
+class StaticKNN:
+    """The k objects nearest to the manipulated box at t = 0; never re-picks during the episode."""
+
+    name = "static-knn"
+
+    def __init__(self) -> None:
+        self._ids: list[int] | None = None
+        self.picks = 0
+
+    def reset(self, view: SceneView, k: int) -> None:
+        self._ids = nearest_ids(view.box_position, view.positions, k)
+        self.picks = 1
+
+    def select(self, view: SceneView, k: int) -> list[int]:
+        if self._ids is None:  # used without reset(): the first view it sees is its t = 0
+            self.reset(view, k)
+        return list(self._ids)
+
+
+class DynamicKNN:
+    """The k objects nearest to the manipulated box, recomputed every ``interval`` control steps.
+
+    Picks at t = 0, interval, 2 * interval, ...; in between it keeps the last pick, as the paper's
+    Dynamic-kNN does (it shares the query schedule of Dynamic-VLM so the two compare like for like).
+    """
+
+    name = "dynamic-knn"
+
+    def __init__(self, interval: int = DEFAULT_INTERVAL) -> None:
+        if interval < 1:
+            raise ValueError(f"the re-selection interval must be >= 1 control step, got {interval}")
+        self.interval = int(interval)
+        self._ids: list[int] = []
+        self._last_t: int | None = None
+        self.picks = 0
+
+    def reset(self, view: SceneView, k: int) -> None:
+        self._ids, self._last_t, self.picks = [], None, 0
+
+    def _pick(self, view: SceneView, k: int) -> list[int]:
+        return nearest_ids(view.box_position, view.positions, k)
+
+    def select(self, view: SceneView, k: int) -> list[int]:
+        if _due(self._last_t, view.t, self.interval):
+            self._ids = self._pick(view, k)
+            self._last_t = view.t
+            self.picks += 1
+        return list(self._ids)
+
+
+class PrivilegedSelector(DynamicKNN):
+    """Oracle: the k nearest *fragile* objects by ground truth, topped up with the nearest others.
+
+    Re-picks on the dynamic-knn schedule, so the only difference from dynamic-knn is the semantics
+    (paper Table I, "privileged selection").
+    """
+
+    name = "privileged"
+
+    def _pick(self, view: SceneView, k: int) -> list[int]:
+        if view.privileged_classes is None:
+            raise ValueError("the privileged selector needs SceneView.privileged_classes (ground-truth classes)")
+        fragile = [i for i, c in enumerate(view.privileged_classes) if c == "fragile"]
+        ids = nearest_ids(view.box_position, view.positions, k, candidates=fragile)
+        if len(ids) < k:
+            others = [i for i in range(len(view.names)) if i not in set(ids)]
+            ids += nearest_ids(view.box_position, view.positions, k - len(ids), candidates=others)
+        return ids
+
+
+class FullSelector:
+    """Every object, in id order: what a policy trained with k == N objects saw during training."""
+
+    name = "full"
+
+    def reset(self, view: SceneView, k: int) -> None:
+        pass
+
+    def select(self, view: SceneView, k: int) -> list[int]:
+        return list(range(min(k, len(view.names))))
+
+
+class ConservativeConstraints:
+    """no_contact for every object: the safe choice when semantics are unknown (paper F^conser)."""
+
+    name = "conservative"
+
+    def assign(self, view: SceneView) -> list[str]:
+        return ["no_contact"] * len(view.names)
+
+
+class GroundTruthConstraints:
+    """The constraint the judge uses for each object (class -> constraint), read from the privileged view."""
+
+    name = "ground-truth"
+
+    def assign(self, view: SceneView) -> list[str]:
+        if view.privileged_classes is None:
+            raise ValueError("the ground-truth constraint selector needs SceneView.privileged_classes")
+        return [CONSTRAINT_OF_CLASS[c] for c in view.privileged_classes]
+
+
+# ------------------------------------------------------------------------------------------ registry
+@dataclass(frozen=True)
+class SelectorOptions:
+    """Everything a selector factory may need; plain data so it can travel to worker processes."""
+
+    interval: int = DEFAULT_INTERVAL
+    vlm_backend: str = "semantic"
+    vlm_model: str | None = None
+    vlm_base_url: str | None = None
+    vlm_cache: str | None = None
+    vlm_cache_only: bool = False
+    vlm_history: int = 2
+    """Frames tiled per Dynamic-VLM query (paper: the images of the previous two queries)."""
+
+
+def _vlm_backend(opts: SelectorOptions):
+    from safemanip.semantics.commands import make_backend
+
+    return make_backend(opts.vlm_backend, model=opts.vlm_model, base_url=opts.vlm_base_url, cache_dir=opts.vlm_cache,
+                        cache_mode="cache_only" if opts.vlm_cache_only else "readwrite")
+
+
+def _dynamic_vlm(opts: SelectorOptions) -> ObjectSelector:
+    from safemanip.semantics.selectors import DynamicVLMSelector
+
+    return DynamicVLMSelector(_vlm_backend(opts), query_interval=opts.interval, history=opts.vlm_history)
+
+
+def _vlm_constraints(opts: SelectorOptions) -> ConstraintSelector:
+    from safemanip.semantics.selectors import VLMConstraintSelector
+
+    return VLMConstraintSelector(_vlm_backend(opts), name="vlm")
+
+
+OBJECT_SELECTORS: dict[str, Callable[[SelectorOptions], ObjectSelector]] = {
+    "static-knn": lambda o: StaticKNN(),
+    "dynamic-knn": lambda o: DynamicKNN(o.interval),
+    "privileged": lambda o: PrivilegedSelector(o.interval),
+    "full": lambda o: FullSelector(),
+    "dynamic-vlm": _dynamic_vlm,
+}
+
+CONSTRAINT_SELECTORS: dict[str, Callable[[SelectorOptions], ConstraintSelector]] = {
+    "conservative": lambda o: ConservativeConstraints(),
+    "ground-truth": lambda o: GroundTruthConstraints(),
+    "vlm": _vlm_constraints,
+}
+
+USES_VLM = {"dynamic-vlm", "vlm"}
+"""Names whose factory builds a semantic backend (so the --vlm-* options apply)."""
+
+
+def make_object_selector(name: str, options: SelectorOptions | None = None) -> ObjectSelector:
+    if name not in OBJECT_SELECTORS:
+        raise ValueError(f"unknown object selector {name!r}; choose one of {sorted(OBJECT_SELECTORS)}")
+    return OBJECT_SELECTORS[name](options or SelectorOptions())
+
+
+def make_constraint_selector(name: str, options: SelectorOptions | None = None) -> ConstraintSelector:
+    if name not in CONSTRAINT_SELECTORS:
+        raise ValueError(f"unknown constraint selector {name!r}; choose one of {sorted(CONSTRAINT_SELECTORS)}")
+    return CONSTRAINT_SELECTORS[name](options or SelectorOptions())

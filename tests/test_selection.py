@@ -1,0 +1,201 @@
+"""Object and constraint selectors on hand-built views, and the reducer's ordering, encoding and padding."""
+
+import numpy as np
+import pytest
+
+from safemanip.env.observation import ROBOT_DIM, SLOT_DIM, SceneState, observation_dim
+from safemanip.evaluation.parallel import NumpyPolicy
+from safemanip.selection.base import SceneView
+from safemanip.selection.reducer import DUMMY_POSITIONS, Reducer, order_by_distance
+from safemanip.selection.selectors import (CONSTRAINT_SELECTORS, OBJECT_SELECTORS, ConservativeConstraints,
+                                           DynamicKNN, FullSelector, GroundTruthConstraints, PrivilegedSelector,
+                                           SelectorOptions, StaticKNN, make_constraint_selector,
+                                           make_object_selector)
+
+BOX = np.array([0.0, 0.0, 0.035])
+
+
+def view(t, positions, classes=None, box=BOX):
+    positions = np.asarray(positions, dtype=float)
+    if positions.shape[1] == 2:
+        positions = np.c_[positions, np.zeros(len(positions))]
+    n = len(positions)
+    path = np.tile(box, (t + 1, 1))
+    return SceneView(t=t, names=tuple(f"obj{i}" for i in range(n)), positions=positions,
+                     velocities=np.zeros((n, 3)), ee_path=path, box_path=path, box_velocity=np.zeros(3),
+                     privileged_classes=tuple(classes) if classes else None)
+
+
+# object 0 is far, 1 near, 2 middle, 3 nearest
+POS = [[0.9, 0.0], [0.2, 0.0], [0.0, 0.5], [0.0, -0.1]]
+
+
+def test_nearest_is_horizontal_distance_to_the_box_centre():
+    sel = DynamicKNN()
+    v = view(0, [[0.3, 0.0, 0.0], [0.0, 0.25, 5.0]])  # object 1 is far above but horizontally nearer
+    sel.reset(v, 1)
+    assert sel.select(v, 1) == [1]
+    moved = view(4, [[0.3, 0.0, 0.0], [0.0, 0.25, 5.0]], box=np.array([0.3, 0.1, 0.035]))  # the box moved
+    assert sel.select(moved, 1) == [0]
+
+
+def test_static_knn_picks_at_t0_and_never_repicks():
+    sel = StaticKNN()
+    sel.reset(view(0, POS), 2)
+    assert sel.select(view(0, POS), 2) == [3, 1]
+    swapped = [[0.0, -0.1], [0.9, 0.0], [0.0, 0.05], [0.0, 0.9]]  # now 0 and 2 are nearest
+    for t in range(1, 40):
+        assert sel.select(view(t, swapped), 2) == [3, 1]
+    assert sel.picks == 1
+
+
+def test_dynamic_knn_repicks_every_interval_steps():
+    sel = DynamicKNN()  # default interval: 4 (paper)
+    sel.reset(view(0, POS), 2)
+    assert sel.select(view(0, POS), 2) == [3, 1]
+    swapped = [[0.0, -0.1], [0.9, 0.0], [0.0, 0.05], [0.9, 0.9]]
+    for t in (1, 2, 3):  # keeps the last pick between queries even though the scene changed
+        assert sel.select(view(t, swapped), 2) == [3, 1]
+    assert sel.select(view(4, swapped), 2) == [2, 0]
+    assert sel.picks == 2
+    sel2 = DynamicKNN(interval=2)
+    sel2.reset(view(0, POS), 1)
+    picks = [tuple(sel2.select(view(t, POS if t < 2 else swapped), 1)) for t in range(5)]
+    assert picks == [(3,), (3,), (2,), (2,), (2,)] and sel2.picks == 3
+    with pytest.raises(ValueError, match="interval"):
+        DynamicKNN(interval=0)
+
+
+def test_dynamic_knn_starts_over_on_a_new_episode_without_reset():
+    sel = DynamicKNN()
+    sel.reset(view(0, POS), 1)
+    sel.select(view(0, POS), 1)
+    sel.select(view(9, POS), 1)
+    other = [[0.0, -0.05], [0.9, 0.0], [0.0, 0.5], [0.9, 0.9]]
+    assert sel.select(view(0, other), 1) == [0]  # t went backwards: a new episode, pick now
+
+
+def test_privileged_prefers_fragile_then_tops_up_with_nearest_others():
+    classes = ["fragile", "durable", "fragile", "soft"]  # the nearest two (3, 1) are not fragile
+    sel = PrivilegedSelector()
+    sel.reset(view(0, POS, classes), 2)
+    assert sel.select(view(0, POS, classes), 2) == [2, 0]
+    sel3 = PrivilegedSelector()
+    sel3.reset(view(0, POS, classes), 3)
+    assert sel3.select(view(0, POS, classes), 3) == [2, 0, 3]  # two fragile, then the nearest other
+    with pytest.raises(ValueError, match="privileged_classes"):
+        PrivilegedSelector().select(view(0, POS), 2)
+
+
+def test_privileged_repicks_on_the_dynamic_schedule():
+    classes = ["fragile", "fragile", "durable", "durable"]
+    sel = PrivilegedSelector(interval=4)
+    sel.reset(view(0, POS, classes), 1)
+    assert sel.select(view(0, POS, classes), 1) == [1]
+    closer0 = [[0.05, 0.0], [0.2, 0.0], [0.0, 0.5], [0.0, -0.1]]
+    assert sel.select(view(3, closer0, classes), 1) == [1]
+    assert sel.select(view(4, closer0, classes), 1) == [0]
+
+
+def test_full_selector_and_constraint_selectors():
+    assert FullSelector().select(view(0, POS), 4) == [0, 1, 2, 3]
+    classes = ["fragile", "soft", "durable", "fragile"]
+    assert ConservativeConstraints().assign(view(0, POS, classes)) == ["no_contact"] * 4
+    assert GroundTruthConstraints().assign(view(0, POS, classes)) == ["no_contact", "soft_contact", "any_contact",
+                                                                      "no_contact"]
+
+
+def test_registry_names_and_errors(tmp_path):
+    assert {"static-knn", "dynamic-knn", "privileged", "dynamic-vlm"} <= set(OBJECT_SELECTORS)
+    assert {"conservative", "ground-truth", "vlm"} <= set(CONSTRAINT_SELECTORS)
+    assert make_object_selector("dynamic-knn", SelectorOptions(interval=7)).interval == 7
+    with pytest.raises(ValueError, match="unknown object selector 'nearest'"):
+        make_object_selector("nearest")
+    with pytest.raises(ValueError, match="unknown constraint selector"):
+        make_constraint_selector("gt")
+    # the VLM seam: built from the semantics package with the backend options (no network at construction)
+    opts = SelectorOptions(interval=3, vlm_backend="openai", vlm_model="m", vlm_cache=str(tmp_path), vlm_cache_only=True)
+    vlm = make_object_selector("dynamic-vlm", opts)
+    assert vlm.query_interval == 3 and vlm.backend.model == "m" and vlm.backend.cache.mode == "cache_only"
+    assert make_constraint_selector("vlm", opts).name == "vlm"
+
+
+# ------------------------------------------------------------------------------------------ reducer
+def state(obj_xy, box=(0.0, 0.0)):
+    n = len(obj_xy)
+    obj = np.c_[np.asarray(obj_xy, dtype=float), np.full(n, 0.0005)]
+    return SceneState(ee_pos=np.array([box[0], box[1] - 0.095, 0.035]), ee_vel=np.array([0.1, 0.0, 0.0]),
+                      bottom_pos=np.array([box[0], box[1], 0.035]), bottom_vel=np.array([0.1, 0.0, 0.0]),
+                      top_pos=np.array([0.0, 0.04, 0.105]), top_vel=np.zeros(3), obj_pos=obj,
+                      obj_vel=np.arange(3 * n, dtype=float).reshape(n, 3) / 100)
+
+
+def slots(obs, k):
+    return obs[ROBOT_DIM:].reshape(k, SLOT_DIM)
+
+
+def test_reducer_orders_slots_nearest_first_and_encodes_constraints():
+    s = state([[0.5, 0.0], [0.1, 0.0], [0.0, 0.3], [0.2, 0.2]])
+    assert order_by_distance(s, [0, 1, 2]) == [1, 2, 0]
+    constraints = ["no_contact", "any_contact", "soft_contact", "no_contact"]
+    red = Reducer(3, "all")
+    obs = red(s, [0, 2, 1], constraints)  # the selector's order does not matter
+    assert obs.shape == (observation_dim(3),) and obs.dtype == np.float32
+    sl = slots(obs, 3)
+    np.testing.assert_allclose(sl[:, :3], s.obj_pos[[1, 2, 0]], atol=1e-7)
+    np.testing.assert_allclose(sl[:, 3:6], s.obj_vel[[1, 2, 0]], atol=1e-7)
+    np.testing.assert_array_equal(sl[:, 6:], [[0, 0, 1], [0, 1, 0], [1, 0, 0]])  # any, soft, no
+    np.testing.assert_allclose(obs[6:9], s.bottom_pos, atol=1e-7)
+    np.testing.assert_array_equal(obs, red(s, [1, 0, 2], constraints))
+
+
+def test_reducer_equal_distances_break_ties_by_id():
+    s = state([[0.2, 0.0], [-0.2, 0.0], [0.0, 0.2]])
+    assert order_by_distance(s, [2, 1, 0]) == [0, 1, 2]
+
+
+def test_conservative_policy_gets_no_contact_whatever_the_selector_says():
+    s = state([[0.5, 0.0], [0.1, 0.0], [0.0, 0.3]])
+    obs = Reducer(2, "conservative")(s, [0, 1], ["any_contact", "soft_contact", "any_contact"])
+    np.testing.assert_array_equal(slots(obs, 2)[:, 6:], [[1, 0, 0], [1, 0, 0]])
+
+
+def test_reducer_pads_missing_slots_with_far_dummies_only_when_allowed():
+    s = state([[0.1, 0.0]])
+    with pytest.raises(ValueError, match="--pad"):
+        Reducer(3, "all")(s, [0], ["no_contact"])
+    obs = Reducer(3, "all", pad=True)(s, [0], ["soft_contact"])
+    sl = slots(obs, 3)
+    np.testing.assert_allclose(sl[0, :3], s.obj_pos[0], atol=1e-7)
+    np.testing.assert_allclose(sl[1:, :3], DUMMY_POSITIONS[:2], atol=1e-6)
+    np.testing.assert_array_equal(sl[1:, 3:6], 0.0)  # dummies stand still
+    np.testing.assert_array_equal(sl[:, 6:], [[0, 1, 0], [0, 0, 1], [0, 0, 1]])  # dummies: any_contact
+    cons = slots(Reducer(3, "conservative", pad=True)(s, [0], ["soft_contact"]), 3)
+    np.testing.assert_array_equal(cons[:, 6:], [[1, 0, 0]] * 3)  # a conservative policy knows only no_contact
+    # dummies are far from the box's path to the goal (y about -0.15) and on the table
+    assert np.all(DUMMY_POSITIONS[:, 1] > 0.2) and np.all(np.abs(DUMMY_POSITIONS[:, 0]) < 0.75)
+    empty = Reducer(2, "all", pad=True)(state(np.zeros((0, 2))), [], [])
+    assert empty.shape == (observation_dim(2),)
+
+
+def test_reducer_rejects_bad_input():
+    s = state([[0.1, 0.0], [0.2, 0.0]])
+    with pytest.raises(ValueError, match="distinct"):
+        Reducer(2, "all")(s, [0, 0], ["no_contact"] * 2)
+    with pytest.raises(ValueError, match="k=1"):
+        Reducer(1, "all")(s, [0, 1], ["no_contact"] * 2)
+    with pytest.raises(ValueError, match="policy_constraints"):
+        Reducer(1, "some")
+
+
+def test_numpy_policy_matches_the_training_numpy_actor_bit_for_bit():
+    from safemanip.rl.networks import NumpyActor
+
+    rng = np.random.default_rng(0)
+    sizes = [observation_dim(2), 64, 64, 3]
+    arrays = []
+    for i in range(3):
+        arrays += [rng.normal(size=(sizes[i + 1], sizes[i])).astype(np.float32),
+                   rng.normal(size=sizes[i + 1]).astype(np.float32)]
+    obs = rng.normal(size=(5, sizes[0])).astype(np.float32)
+    np.testing.assert_array_equal(NumpyPolicy(arrays)(obs), NumpyActor(arrays)(obs))
