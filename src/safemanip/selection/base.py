@@ -33,7 +33,9 @@ class SceneView:
     privileged_classes: tuple[str, ...] | None = None
     """Ground-truth semantic class per object (fragile/soft/durable). Privileged selectors only."""
     render: Callable[[], dict] | None = field(default=None, repr=False)
-    """Optional: returns {"image": HxWx3 uint8, "boxes": {id: (x0, y0, x1, y1)}} for the query camera."""
+    """Optional: returns {"image": HxWx3 uint8, "boxes": {id: (x0, y0, x1, y1)}, "ee_path_px": (T, 2)} for the
+    query camera (pixel boxes of the clutter objects and the end-effector path projected into the image).
+    Built lazily by ``selection.view.EnvViewBuilder``: nothing is rendered unless a selector calls it."""
 
     @property
     def ee_position(self) -> np.ndarray:
@@ -79,7 +81,10 @@ class SelectorStats:
 
 
 def nearest_ids(reference: np.ndarray, positions: np.ndarray, k: int, candidates: Sequence[int] | None = None) -> list[int]:
-    """Ids of the k objects whose centres are nearest (horizontal distance) to ``reference``, nearest first."""
+    """Ids of the k objects whose centres are nearest (horizontal distance) to ``reference``, nearest first.
+
+    Ties keep id order. The metric selectors pass the manipulated box's centre as ``reference``.
+    """
     ids = np.arange(len(positions)) if candidates is None else np.asarray(list(candidates), dtype=int)
     if len(ids) == 0:
         return []
