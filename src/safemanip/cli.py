@@ -51,19 +51,6 @@ def _cmd_train(args) -> int:
     return 0
 
 
-def _cmd_eval(args) -> int:
-    import json
-
-    from safemanip.evaluation.harness import evaluate_policy_file
-
-    report = evaluate_policy_file(args.policy, episodes=args.episodes, seed=args.seed, workers=args.workers,
-                                  n_objects=args.n_objects, out=args.out)
-    print(report["text"])
-    if args.json:
-        print(json.dumps(report["summary"], indent=1))
-    return 0
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="safemanip", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -96,15 +83,9 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--no-progress", action="store_true")
     tr.set_defaults(func=_cmd_train)
 
-    ev = sub.add_parser("eval", help="roll a policy out and report success and failures with 95% intervals")
-    ev.add_argument("--policy", required=True, help="policy file (.safetensors) or run folder")
-    ev.add_argument("--episodes", type=int, default=500)
-    ev.add_argument("--seed", type=int, default=0, help="episode seeds are seed*100000 + i")
-    ev.add_argument("--workers", type=int, default=2)
-    ev.add_argument("--n-objects", type=int, help="scene size (default: the policy's k)")
-    ev.add_argument("--out", help="folder for per-episode records (CSV) and summary (JSON)")
-    ev.add_argument("--json", action="store_true", help="also print the JSON summary")
-    ev.set_defaults(func=_cmd_eval)
+    from safemanip.evaluation.commands import register as register_evaluation
+
+    register_evaluation(sub)  # eval and sweep
 
     catalog = sub.add_parser("catalog", help="list the object catalog: name, class, constraint, mass")
     catalog.set_defaults(func=_cmd_catalog)

@@ -1,72 +1,332 @@
-"""``safemanip eval``: roll a policy out on fixed seeds and report rates with 95% Wilson intervals."""
+"""``safemanip eval``: a k-object policy in N-object scenes, with an object and a constraint selector.
+
+``EvalRequest`` holds what the user asked for; ``prepare`` validates all of it before any episode runs
+(every problem in one message that says what to change) and turns it into a worker ``EvalSpec``;
+``evaluate`` runs the episodes, summarises them with 95% Wilson intervals and writes
+
+  OUT/episodes.csv   one row per episode (seed, outcome, category, object involved, selected or not,
+                     selections over time, ...; see ``evaluation/episode.py``)
+  OUT/summary.json   the request, the policy's metadata, counts, rates and intervals
+
+so any table can be rebuilt from the files without rerunning. Episode seeds are ``seed * 100000 + i``.
+
+The judge is the full scene: ``--judge ground-truth`` (default) uses each object's catalog class
+(fragile -> no_contact, soft -> soft_contact, durable -> any_contact); ``--judge conservative``
+treats every object as fragile (the paper's F^conser, used for its Fig. 4-6 with uniform semantics).
+"""
 
 from __future__ import annotations
 
 import csv
 import json
+import time
 from collections import Counter
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
 
-from safemanip.evaluation.rollout import evaluate_actor
+from safemanip.evaluation.episode import CATEGORIES, CATEGORY_LABELS, SAFETY_VIOLATIONS
+from safemanip.evaluation.parallel import BACKENDS, EvalSpec, run_episodes
 from safemanip.evaluation.stats import rate_line, wilson_interval
+from safemanip.selection.selectors import (CONSTRAINT_SELECTORS, DEFAULT_INTERVAL, OBJECT_SELECTORS, USES_VLM,
+                                           SelectorOptions)
 
-FAILURE_ORDER = ("failure:dyn", "failure:oob", "failure:hard", "failure:soft", "timeout", "unstable")
+JUDGES = {"ground-truth": "ground_truth", "conservative": "conservative"}
+VLM_BACKENDS = ("semantic", "openai")
+SEED_STRIDE = 100_000
+METRIC_SELECTORS = ("static-knn", "dynamic-knn", "privileged", "dynamic-vlm")
+
+
+class EvalConfigError(ValueError):
+    """An evaluation request that cannot run; the message lists what to change."""
+
+
+@dataclass
+class EvalRequest:
+    policy: str
+    n_objects: int | None = None
+    """Scene size N (default: the number of --semantics classes, else the policy's k)."""
+    semantics: str | None = None
+    """Classes of the clutter, e.g. '2 fragile, 3 durable' (default: any catalog objects)."""
+    selector: str | None = None
+    """Object selector (default: 'full' when N == k; required when N != k)."""
+    constraints: str | None = None
+    """Constraint selector (default: conservative for a conservative policy, ground-truth for an 'all' one)."""
+    judge: str = "ground-truth"
+    episodes: int = 500
+    seed: int = 0
+    workers: int = 2
+    backend: str = "local"
+    address: str | None = None
+    out: str | None = None
+    pad: bool = False
+    interval: int = DEFAULT_INTERVAL
+    vlm_backend: str | None = None
+    vlm_model: str | None = None
+    vlm_base_url: str | None = None
+    vlm_cache: str | None = None
+    vlm_cache_only: bool = False
+    max_episode_steps: int | None = None
+    chunk_size: int | None = None
+    progress: bool = False
+
+
+@dataclass
+class Prepared:
+    request: EvalRequest
+    spec: EvalSpec
+    meta: dict
+    seeds: list[int]
+    n_objects: int
+    notes: list[str]
+
+
+def _policy_problems(req: EvalRequest, problems: list[str]):
+    from safemanip.rl.checkpoint import load_policy
+    from safemanip.env.observation import observation_dim
+
+    try:
+        actor, meta = load_policy(req.policy)
+    except (ValueError, OSError) as err:  # PolicyFileError is a ValueError; a corrupt file raises others
+        problems.append(f"--policy {req.policy}: {err}")
+        return None, None
+    missing = [key for key in ("k", "constraints", "env_kwargs") if key not in meta]
+    if missing:
+        problems.append(f"--policy {req.policy}: its metadata lacks {missing}; re-export it with safemanip train")
+        return None, None
+    if "factory" in meta["env_kwargs"]:
+        problems.append(f"--policy {req.policy} was trained on {meta['env_kwargs']['factory']}, not the slide-out "
+                        f"task; only slide-out policies can be evaluated here")
+        return None, None
+    if meta["constraints"] not in ("conservative", "all"):
+        problems.append(f"--policy {req.policy}: unknown constraint set {meta['constraints']!r} in its metadata")
+        return None, None
+    obs_dim = actor.weights[0][0].shape[0]
+    if obs_dim != observation_dim(int(meta["k"])):
+        problems.append(f"--policy {req.policy}: input size {obs_dim} does not match k={meta['k']} "
+                        f"(expected {observation_dim(int(meta['k']))})")
+        return None, None
+    arrays = [a for w, b in actor.weights for a in (w.T.copy(), b)]
+    return arrays, meta
+
+
+def prepare(req: EvalRequest) -> Prepared:
+    """Validate the whole request (no episode runs before this passes) and build the worker spec."""
+    from safemanip.scene.config import MAX_OBJECTS, SceneConfig, parse_semantics
+
+    problems: list[str] = []
+    notes: list[str] = []
+    if req.episodes < 1 or req.episodes > SEED_STRIDE:
+        problems.append(f"--episodes must be 1..{SEED_STRIDE} (seed blocks are {SEED_STRIDE} apart), got {req.episodes}")
+    if req.seed < 0:
+        problems.append(f"--seed must be >= 0, got {req.seed}")
+    if req.workers < 1:
+        problems.append(f"--workers must be >= 1, got {req.workers}")
+    if req.chunk_size is not None and req.chunk_size < 1:
+        problems.append(f"--chunk-size must be >= 1, got {req.chunk_size}")
+    if req.interval < 1:
+        problems.append(f"--interval must be >= 1 control step, got {req.interval}")
+    if req.backend not in BACKENDS:
+        problems.append(f"--backend must be one of {BACKENDS}, got {req.backend!r}")
+    if req.address and req.backend != "ray":
+        problems.append("--address only applies to --backend ray: add --backend ray or drop --address")
+    if req.backend == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            problems.append("--backend ray needs Ray: pip install 'ray[default]' (or use --backend local)")
+    if req.selector is not None and req.selector not in OBJECT_SELECTORS:
+        problems.append(f"unknown --selector {req.selector!r}; choose one of {', '.join(sorted(OBJECT_SELECTORS))}")
+    if req.constraints is not None and req.constraints not in CONSTRAINT_SELECTORS:
+        problems.append(f"unknown --constraints {req.constraints!r}; choose one of "
+                        f"{', '.join(sorted(CONSTRAINT_SELECTORS))}")
+    if req.judge not in JUDGES:
+        problems.append(f"unknown --judge {req.judge!r}; choose one of {', '.join(JUDGES)}")
+    if req.max_episode_steps is not None and req.max_episode_steps < 1:
+        problems.append(f"--max-episode-steps must be >= 1, got {req.max_episode_steps}")
+
+    uses_vlm = req.selector in USES_VLM or (req.constraints or "") in USES_VLM
+    vlm_given = [f for f, v in (("--vlm-backend", req.vlm_backend), ("--vlm-model", req.vlm_model),
+                                 ("--vlm-base-url", req.vlm_base_url), ("--vlm-cache", req.vlm_cache),
+                                 ("--vlm-cache-only", req.vlm_cache_only)) if v]
+    if vlm_given and not uses_vlm:
+        problems.append(f"{', '.join(vlm_given)} only appl{'ies' if len(vlm_given) == 1 else 'y'} to "
+                        f"--selector dynamic-vlm or --constraints vlm")
+    vlm_backend = req.vlm_backend or "semantic"
+    if vlm_backend not in VLM_BACKENDS:
+        problems.append(f"--vlm-backend must be one of {VLM_BACKENDS}, got {vlm_backend!r}")
+    elif uses_vlm and vlm_backend == "semantic" and (req.vlm_model or req.vlm_base_url or req.vlm_cache
+                                                     or req.vlm_cache_only):
+        problems.append("--vlm-model/--vlm-base-url/--vlm-cache/--vlm-cache-only apply to --vlm-backend openai; "
+                        "the semantic backend is offline")
+    if req.vlm_cache_only and not req.vlm_cache:
+        problems.append("--vlm-cache-only needs --vlm-cache DIR (the folder of stored answers)")
+
+    classes = None
+    if req.semantics:
+        try:
+            classes = parse_semantics(req.semantics)
+        except ValueError as err:
+            problems.append(f"--semantics: {err}")
+
+    arrays, meta = _policy_problems(req, problems)
+    k = int(meta["k"]) if meta else None
+    n = req.n_objects
+    if n is None:
+        n = len(classes) if classes is not None else k
+    if n is not None:
+        if not 0 <= n <= MAX_OBJECTS:
+            problems.append(f"--n-objects must be 0..{MAX_OBJECTS}, got {n}")
+        if classes is not None and len(classes) != n:
+            problems.append(f"--semantics {req.semantics!r} describes {len(classes)} objects but --n-objects is {n}: "
+                            f"make them match (or leave out --n-objects)")
+        elif 0 <= n <= MAX_OBJECTS:
+            try:
+                SceneConfig(n_objects=n, classes=classes)
+            except ValueError as err:
+                problems.append(f"scene: {err}")
+    selector = req.selector
+    if k is not None and n is not None:
+        if selector is None:
+            if n <= k:
+                selector = "full"
+            else:
+                problems.append(f"the policy has k={k} slots but the scene has N={n} objects: choose an object "
+                                f"selector with --selector ({', '.join(METRIC_SELECTORS)})")
+        if n < k and not req.pad:
+            problems.append(f"the policy needs k={k} objects but the scene has N={n}: use --n-objects >= {k}, a "
+                            f"policy with k <= {n}, or --pad to fill the empty slots with far-away dummy objects")
+        if selector == "full" and n > k:
+            problems.append(f"--selector full shows every object, but N={n} > k={k}: pick one of "
+                            f"{', '.join(METRIC_SELECTORS)}")
+        if meta["constraints"] == "conservative" and req.constraints not in (None, "conservative"):
+            notes.append(f"the policy was trained conservative: every slot gets no_contact, so --constraints "
+                         f"{req.constraints} does not change its input")
+    if problems:
+        raise EvalConfigError("cannot run this evaluation:\n  - " + "\n  - ".join(problems))
+
+    env_train = meta["env_kwargs"]
+    env_kwargs = {"n_objects": n, "classes": classes, "constraints": JUDGES[req.judge],
+                  "near_path_fraction": env_train.get("near_path_fraction", 0.5),
+                  "max_episode_steps": req.max_episode_steps or env_train.get("max_episode_steps", 300)}
+    options = SelectorOptions(interval=req.interval, vlm_backend=vlm_backend, vlm_model=req.vlm_model,
+                              vlm_base_url=req.vlm_base_url, vlm_cache=req.vlm_cache,
+                              vlm_cache_only=req.vlm_cache_only)
+    constraints = req.constraints or ("conservative" if meta["constraints"] == "conservative" else "ground-truth")
+    spec = EvalSpec(actor_arrays=arrays, k=k, policy_constraints=meta["constraints"], env_kwargs=env_kwargs,
+                    selector=selector, constraints=constraints, options=options, pad=req.pad)
+    seeds = [req.seed * SEED_STRIDE + i for i in range(req.episodes)]
+    return Prepared(req, spec, meta, seeds, n, notes)
+
+
+# ------------------------------------------------------------------------------------------ summary
+def _rate(count: int, n: int) -> dict:
+    lo, hi = wilson_interval(count, n)
+    return {"count": int(count), "rate": count / n if n else 0.0, "ci95": [lo, hi]}
 
 
 def summarize(records: list[dict]) -> dict:
     n = len(records)
-    events = Counter(r["event"] for r in records)
-    rates = {}
-    for event in ("success", *FAILURE_ORDER):
-        lo, hi = wilson_interval(events[event], n)
-        rates[event] = {"count": events[event], "rate": events[event] / n if n else 0.0, "ci95": [lo, hi]}
-    violations = sum(events[e] for e in FAILURE_ORDER if e.startswith("failure"))
-    lo, hi = wilson_interval(violations, n)
-    return {"episodes": n, "rates": rates, "safety_violation": {"count": violations, "rate": violations / max(n, 1),
-                                                                "ci95": [lo, hi]},
-            "mean_length": float(np.mean([r["length"] for r in records])) if n else 0.0}
+    cats = Counter(r["category"] for r in records)
+    violations = sum(cats[c] for c in SAFETY_VIOLATIONS)
+    lengths = [r["length"] for r in records]
+    soft = [r for r in records if r["category"] == "soft_contact"]
+    return {
+        "episodes": n,
+        "success": _rate(cats["success"], n),
+        "safety_violation": _rate(violations, n),
+        "categories": {c: _rate(cats[c], n) for c in CATEGORIES},
+        "soft_contact_unselected": int(sum(r["selected"] == "no" for r in soft)),
+        "mean_length": float(np.mean(lengths)) if n else 0.0,
+        "mean_length_success": float(np.mean([r["length"] for r in records if r["category"] == "success"]))
+        if cats["success"] else None,
+        "mean_selection_changes": float(np.mean([r["selection_changes"] for r in records])) if n else 0.0,
+        "selector_queries": {key: int(sum(r[key] for r in records)) for key in
+                             ("object_queries", "object_fallbacks", "constraint_queries", "constraint_fallbacks")},
+    }
+
+
+def describe(prep: Prepared) -> dict:
+    req, meta, spec = prep.request, prep.meta, prep.spec
+    return {"policy": str(req.policy), "algorithm": meta.get("algorithm"), "k": spec.k,
+            "policy_constraints": spec.policy_constraints, "n_objects": prep.n_objects, "semantics": req.semantics,
+            "selector": spec.selector, "constraints": spec.constraints, "judge": req.judge, "pad": spec.pad,
+            "interval": spec.options.interval, "vlm": ({"backend": spec.options.vlm_backend, "model": req.vlm_model,
+                                                         "base_url": req.vlm_base_url, "cache": req.vlm_cache,
+                                                         "cache_only": req.vlm_cache_only}
+                                                        if spec.selector in USES_VLM or spec.constraints in USES_VLM
+                                                        else None),
+            "env_kwargs": spec.env_kwargs, "episodes": len(prep.seeds), "seed": req.seed,
+            "seeds": [prep.seeds[0], prep.seeds[-1]], "backend": req.backend, "workers": req.workers}
 
 
 def format_summary(summary: dict, title: str) -> str:
     n = summary["episodes"]
-    lines = [title, rate_line("success", summary["rates"]["success"]["count"], n),
+    lines = [title, rate_line("success", summary["success"]["count"], n),
              rate_line("safety violation", summary["safety_violation"]["count"], n)]
-    labels = {"failure:dyn": "top box out of safe set", "failure:oob": "out of workspace",
-              "failure:hard": "no-contact collision", "failure:soft": "soft-contact too fast",
-              "timeout": "timeout", "unstable": "unstable simulation"}
-    for event in FAILURE_ORDER:
-        lines.append("  " + rate_line(labels[event], summary["rates"][event]["count"], n, width=26))
-    lines.append(f"mean episode length: {summary['mean_length']:.1f} steps")
+    for c in CATEGORIES[1:]:
+        lines.append("  " + rate_line(CATEGORY_LABELS[c], summary["categories"][c]["count"], n, width=26))
+    if summary["categories"]["soft_contact"]["count"]:
+        lines.append(f"  (soft-contact violations with an unselected object: {summary['soft_contact_unselected']})")
+    lines.append(f"mean episode length: {summary['mean_length']:.1f} steps"
+                 + (f" (successes: {summary['mean_length_success']:.1f})" if summary["mean_length_success"] else ""))
+    q = summary["selector_queries"]
+    if q["object_queries"] or q["constraint_queries"]:
+        lines.append(f"semantic queries: objects {q['object_queries']} ({q['object_fallbacks']} fell back), "
+                     f"constraints {q['constraint_queries']} ({q['constraint_fallbacks']} fell back)")
     return "\n".join(lines)
 
 
+def title_of(desc: dict) -> str:
+    scene = f"N={desc['n_objects']}" + (f" ({desc['semantics']})" if desc["semantics"] else "")
+    return (f"{desc['policy']}: {desc['algorithm']} k={desc['k']} ({desc['policy_constraints']}) | {scene}, "
+            f"selector {desc['selector']}, constraints {desc['constraints']}, judge {desc['judge']} | "
+            f"{desc['episodes']} episodes, seeds {desc['seeds'][0]}..{desc['seeds'][1]}")
+
+
 def write_records(out: Path, records: list[dict], summary: dict) -> None:
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     with open(out / "episodes.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(records[0].keys()))
         writer.writeheader()
-        for r in records:
-            writer.writerow({k: (";".join(map(str, v)) if isinstance(v, list) else v) for k, v in r.items()})
-    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+        writer.writerows(records)
+    tmp = out / "summary.json.tmp"
+    tmp.write_text(json.dumps(summary, indent=1))
+    tmp.replace(out / "summary.json")
 
 
-def evaluate_policy_file(policy: str, episodes: int = 500, seed: int = 0, workers: int = 2,
-                         n_objects: int | None = None, out: str | None = None) -> dict:
-    from safemanip.rl.checkpoint import load_policy
+def read_records(path: Path) -> list[dict]:
+    """Rows of an episodes.csv with numbers turned back into ints (for rebuilding tables)."""
+    ints = ("seed", "length", "selection_changes", "object_queries", "object_fallbacks", "constraint_queries",
+            "constraint_fallbacks")
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    for r in rows:
+        for key in ints:
+            r[key] = int(r[key])
+        r["object_id"] = int(r["object_id"]) if r["object_id"] != "" else ""
+    return rows
 
-    actor, meta = load_policy(policy)
-    env_kwargs = dict(meta["env_kwargs"])
-    if n_objects is not None and n_objects != meta["k"]:
-        raise ValueError(f"this policy sees exactly k={meta['k']} objects; scenes with more objects need a "
-                         f"selector (see `safemanip eval --help`), so use --n-objects {meta['k']}")
-    arrays = [a for pair in actor.weights for a in (pair[0].T, pair[1])]
-    seeds = [seed * 100_000 + i for i in range(episodes)]
-    records = evaluate_actor(arrays, env_kwargs, seeds, workers=workers)
-    summary = summarize(records)
-    summary.update(policy=str(policy), env_kwargs=env_kwargs, seeds=[seeds[0], seeds[-1]])
-    if out:
-        write_records(Path(out), records, summary)
-    title = f"{policy}: {meta['algorithm']} k={meta['k']} ({meta['constraints']}), {episodes} episodes, seeds {seeds[0]}..{seeds[-1]}"
-    return {"summary": summary, "records": records, "text": format_summary(summary, title)}
+
+def evaluate(req: EvalRequest) -> dict:
+    """Validate, run, summarise, write. Returns {"summary", "records", "text"}."""
+    prep = prepare(req)
+    start = time.perf_counter()
+    records = run_episodes(prep.spec, prep.seeds, workers=req.workers, backend=req.backend, address=req.address,
+                           chunk_size=req.chunk_size, progress=req.progress)
+    wall = time.perf_counter() - start
+    desc = describe(prep)
+    summary = {"request": {f.name: getattr(req, f.name) for f in fields(req)}, "eval": desc,
+               "policy_meta": {k: v for k, v in prep.meta.items() if k not in ("train_config",)},
+               **summarize(records), "wall_s": round(wall, 2), "episodes_per_s": round(len(records) / wall, 2),
+               "notes": prep.notes}
+    if req.out:
+        write_records(Path(req.out), records, summary)
+    text = format_summary(summary, title_of(desc))
+    if prep.notes:
+        text += "\n" + "\n".join(f"note: {n}" for n in prep.notes)
+    return {"summary": summary, "records": records, "text": text}
+
+

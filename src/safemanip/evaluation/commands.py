@@ -1,0 +1,117 @@
+"""CLI wiring of ``safemanip eval`` and ``safemanip sweep``; ``cli.build_parser`` calls ``register``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+EVAL_EXAMPLES = """examples:
+  safemanip eval --policy policies/rarl-k3-conservative.safetensors --episodes 500
+      (k == N: the full-state policy in its own setting)
+  safemanip eval --policy policies/rarl-k2-conservative.safetensors --n-objects 6 --selector dynamic-knn \\
+      --judge conservative --episodes 2000 --out results/k2-n6-dyn
+  safemanip eval --policy policies/rarl-k2-conservative.safetensors --semantics "2 fragile, 3 durable" \\
+      --selector dynamic-vlm --episodes 500 --backend ray
+  safemanip eval --policy policies/rarl-k2-all.safetensors --semantics "2 fragile, 2 soft, 1 durable" \\
+      --selector dynamic-vlm --constraints vlm --vlm-backend openai --vlm-model gpt-4o --vlm-cache vlm_cache
+
+"nearest" (static-knn, dynamic-knn, privileged) = horizontal distance from an object's centre to the
+centre of the manipulated (bottom) box. Policy slots are filled nearest first.
+"""
+
+SWEEP_EXAMPLES = """examples:
+  safemanip sweep fig5                      run (or resume) the Fig. 5 grid, then draw it
+  safemanip sweep fig6 --episodes 200       a quicker pass (cells are redone when the count changes)
+  safemanip sweep fig5 --render-only        redraw figure and table from the stored cell results
+  safemanip sweep --list                    the shipped sweeps
+"""
+
+
+def _cmd_eval(args) -> int:
+    from safemanip.evaluation.harness import EvalRequest, evaluate
+
+    req = EvalRequest(policy=args.policy, n_objects=args.n_objects, semantics=args.semantics, selector=args.selector,
+                      constraints=args.constraints, judge=args.judge, episodes=args.episodes, seed=args.seed,
+                      workers=args.workers, backend=args.backend, address=args.address, out=args.out, pad=args.pad,
+                      interval=args.interval, vlm_backend=args.vlm_backend, vlm_model=args.vlm_model,
+                      vlm_base_url=args.vlm_base_url, vlm_cache=args.vlm_cache, vlm_cache_only=args.vlm_cache_only,
+                      max_episode_steps=args.max_episode_steps, chunk_size=args.chunk_size,
+                      progress=not args.no_progress)
+    report = evaluate(req)
+    print(report["text"])
+    if args.out:
+        print(f"records: {args.out}/episodes.csv, summary: {args.out}/summary.json")
+    if args.json:
+        print(json.dumps({k: v for k, v in report["summary"].items() if k != "policy_meta"}, indent=1))
+    return 0
+
+
+def _cmd_sweep(args) -> int:
+    from safemanip.evaluation.sweep import available, run_sweep
+
+    if args.list or not args.name:
+        if not args.list:
+            raise ValueError("name a sweep, e.g. `safemanip sweep fig5`; shipped: " + ", ".join(available()))
+        for name in available():
+            print(name)
+        return 0
+    if args.episodes is not None and args.episodes < 1:
+        raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    status = run_sweep(args.name, episodes=args.episodes, out=args.out, workers=args.workers, backend=args.backend,
+                       address=args.address, render_only=args.render_only, progress=not args.no_progress)
+    return 1 if status["failed"] else 0
+
+
+def _add_run_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--workers", type=int, default=2, help="parallel workers (local processes or Ray CPUs; default 2)")
+    p.add_argument("--backend", default="local", choices=["local", "ray"],
+                   help="local: spawn processes on this machine; ray: Ray tasks (default: local)")
+    p.add_argument("--address", help="Ray cluster address for --backend ray (default: start a local Ray instance)")
+    p.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
+
+
+def register(subparsers) -> None:
+    from safemanip.selection.selectors import CONSTRAINT_SELECTORS, OBJECT_SELECTORS
+
+    ev = subparsers.add_parser(
+        "eval", help="roll a policy out with object/constraint selection; success and failures with 95%% intervals",
+        epilog=EVAL_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ev.add_argument("--policy", required=True, help="policy file (.safetensors) or training run folder")
+    ev.add_argument("--n-objects", type=int,
+                    help="clutter objects N (default: the number of --semantics classes, else the policy's k)")
+    ev.add_argument("--semantics", help="classes of the clutter, e.g. '2 fragile, 3 durable' (default: any objects)")
+    ev.add_argument("--selector", help=f"object selector: {', '.join(OBJECT_SELECTORS)} "
+                                       "(default: full when N == k, required otherwise)")
+    ev.add_argument("--constraints",
+                    help=f"constraint selector: {', '.join(CONSTRAINT_SELECTORS)} (default: conservative for a "
+                         "conservative policy, which always gets no_contact anyway; ground-truth for an 'all' one)")
+    ev.add_argument("--judge", default="ground-truth", choices=["ground-truth", "conservative"],
+                    help="failure set over all N objects: catalog ground truth, or every object no_contact (F^conser)")
+    ev.add_argument("--episodes", type=int, default=500)
+    ev.add_argument("--seed", type=int, default=0, help="episode seeds are seed*100000 + i")
+    ev.add_argument("--interval", type=int, default=4, help="re-selection interval of dynamic selectors (steps)")
+    ev.add_argument("--pad", action="store_true",
+                    help="allow N < k: fill empty policy slots with far-away dummy objects")
+    ev.add_argument("--max-episode-steps", type=int, help="override the policy's episode length")
+    ev.add_argument("--chunk-size", type=int, help="episodes per worker task (default: about 8 tasks per worker)")
+    vlm = ev.add_argument_group("semantic backend (for --selector dynamic-vlm / --constraints vlm)")
+    vlm.add_argument("--vlm-backend", choices=["semantic", "openai"],
+                     help="semantic: offline embedding model (default); openai: any OpenAI-compatible server")
+    vlm.add_argument("--vlm-model", help="model name for --vlm-backend openai (default gpt-4o)")
+    vlm.add_argument("--vlm-base-url", help="server URL for --vlm-backend openai (default: OpenAI)")
+    vlm.add_argument("--vlm-cache", metavar="DIR", help="answer cache folder for --vlm-backend openai")
+    vlm.add_argument("--vlm-cache-only", action="store_true", help="never call the server; a cache miss falls back")
+    _add_run_options(ev)
+    ev.add_argument("--out", help="folder for episodes.csv and summary.json")
+    ev.add_argument("--json", action="store_true", help="also print the JSON summary")
+    ev.set_defaults(func=_cmd_eval)
+
+    sw = subparsers.add_parser("sweep", help="run a named experiment grid (resumable) and draw its figure/table",
+                               epilog=SWEEP_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sw.add_argument("name", nargs="?", help="a shipped sweep (fig5, fig6, table1, ...) or a sweep .json file")
+    sw.add_argument("--episodes", type=int, help="episodes per cell (default: the sweep's, 2000 for the figures)")
+    sw.add_argument("--out", help="results folder (default: results/sweeps/NAME)")
+    sw.add_argument("--render-only", action="store_true", help="only redraw figure and table from stored results")
+    sw.add_argument("--list", action="store_true", help="list the shipped sweeps")
+    _add_run_options(sw)
+    sw.set_defaults(func=_cmd_sweep)

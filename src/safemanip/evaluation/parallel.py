@@ -1,0 +1,218 @@
+"""Running evaluation episodes in parallel: local processes (default) or Ray tasks.
+
+Episodes are independent, so seeds are cut into chunks and each chunk runs in one worker with its
+own env, actor and selectors (``run_chunk``). A record depends only on its seed and the spec, never
+on which chunk or process ran it: every episode starts from ``env.reset(seed)``, selectors are reset
+per episode, and the policy's NumPy forward pass is limited to one BLAS thread everywhere (a
+multi-threaded matrix product may sum in a different order, and a last-bit difference in an action
+can change a contact-rich rollout). Hence both backends give identical records for the same seeds.
+
+The policy travels as arrays inside the spec, so Ray nodes need the ``safemanip`` package but not the
+policy file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import multiprocessing as mp
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Iterator
+
+import numpy as np
+
+from safemanip.selection.selectors import SelectorOptions
+
+BACKENDS = ("local", "ray")
+_ONE_THREAD = {v: "1" for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+
+
+@dataclass
+class EvalSpec:
+    """Everything a worker needs to run episodes; plain data (pickled to processes / Ray tasks)."""
+
+    actor_arrays: list[np.ndarray]
+    """Actor weights and biases, layer by layer (W as out x in), as saved in a policy file."""
+    k: int
+    policy_constraints: str
+    env_kwargs: dict
+    selector: str
+    constraints: str
+    options: SelectorOptions = field(default_factory=SelectorOptions)
+    pad: bool = False
+    camera: str = "front"
+
+
+@contextlib.contextmanager
+def one_blas_thread() -> Iterator[None]:
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # workers also get OMP/OPENBLAS_NUM_THREADS=1 from their environment (see run_local)
+        yield
+        return
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
+
+
+class NumpyPolicy:
+    """The actor's forward pass, the same arithmetic as ``rl.networks.NumpyActor`` (a test checks they agree
+    bit for bit). Kept here because importing ``rl.networks`` imports torch, several seconds and a few
+    hundred MB in every worker process for a forward pass that needs only NumPy."""
+
+    def __init__(self, arrays: list[np.ndarray]):
+        self.weights = [(np.asarray(arrays[i]).T.copy(), np.asarray(arrays[i + 1]))
+                        for i in range(0, len(arrays), 2)]
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        x = np.asarray(obs, dtype=np.float32)
+        for i, (w, b) in enumerate(self.weights):
+            x = x @ w + b
+            if i < len(self.weights) - 1:
+                np.maximum(x, 0.0, out=x)
+        return np.tanh(x)
+
+
+def run_chunk(spec: EvalSpec, seeds: list[int]) -> list[dict]:
+    """Records of the episodes with these seeds, in the order given."""
+    from safemanip.env.slide_out import SlideOutEnv
+    from safemanip.evaluation.episode import run_episode
+    from safemanip.selection.reducer import Reducer
+    from safemanip.selection.selectors import make_constraint_selector, make_object_selector
+    from safemanip.selection.view import EnvViewBuilder
+
+    with one_blas_thread():
+        env = SlideOutEnv(**spec.env_kwargs)
+        try:
+            actor = NumpyPolicy(spec.actor_arrays)
+            reducer = Reducer(spec.k, spec.policy_constraints, pad=spec.pad)
+            osel = make_object_selector(spec.selector, spec.options)
+            csel = make_constraint_selector(spec.constraints, spec.options)
+            builder = EnvViewBuilder(camera=spec.camera)
+            return [run_episode(env, actor, reducer, osel, csel, s, builder=builder) for s in seeds]
+        finally:
+            env.close()
+
+
+def chunk_seeds(seeds: list[int], workers: int, chunk_size: int | None = None) -> list[list[int]]:
+    """Consecutive chunks; by default about 8 per worker (load balance) but at most 25 episodes each."""
+    if chunk_size is None:
+        chunk_size = max(1, min(25, math.ceil(len(seeds) / (8 * workers))))
+    return [seeds[i:i + chunk_size] for i in range(0, len(seeds), chunk_size)]
+
+
+class Progress:
+    """A line on stderr at most every ``every_s`` seconds (and at the end)."""
+
+    def __init__(self, total: int, enabled: bool, every_s: float = 10.0, label: str = "eval"):
+        self.total, self.enabled, self.every_s, self.label = total, enabled, every_s, label
+        self.done = 0
+        self.start = self.last = time.perf_counter()
+
+    def add(self, n: int) -> None:
+        self.done += n
+        now = time.perf_counter()
+        if self.enabled and (now - self.last >= self.every_s or self.done == self.total):
+            rate = self.done / max(now - self.start, 1e-9)
+            print(f"{self.label}: {self.done}/{self.total} episodes ({rate:.1f}/s)", file=sys.stderr, flush=True)
+            self.last = now
+
+
+@contextlib.contextmanager
+def _env_vars(values: dict) -> Iterator[None]:
+    old = {k: os.environ.get(k) for k in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def run_local(spec: EvalSpec, seeds: list[int], workers: int = 2, chunk_size: int | None = None,
+              on_chunk: Callable[[int], None] | None = None) -> list[dict]:
+    """In this process for one worker, else a spawn pool of ``workers`` processes."""
+    chunks = chunk_seeds(seeds, workers, chunk_size)
+    records: list[dict] = []
+    if workers <= 1:
+        for c in chunks:
+            records += run_chunk(spec, c)
+            if on_chunk:
+                on_chunk(len(c))
+    else:
+        # spawn, not fork: MuJoCo/OpenGL state and threads do not survive a fork safely. The children
+        # inherit the one-thread BLAS settings from the environment before they import numpy. A
+        # ProcessPoolExecutor (not mp.Pool) so that a worker that dies raises BrokenProcessPool
+        # instead of being replaced silently and hanging the run.
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        with _env_vars(_ONE_THREAD), ProcessPoolExecutor(min(workers, len(chunks)),
+                                                         mp_context=mp.get_context("spawn")) as pool:
+            futures = [pool.submit(run_chunk, spec, c) for c in chunks]
+            try:
+                for fut in as_completed(futures):
+                    part = fut.result()
+                    records += part
+                    if on_chunk:
+                        on_chunk(len(part))
+            except BaseException:
+                for f in futures:  # do not keep simulating after a failure or Ctrl-C
+                    f.cancel()
+                raise
+    return _in_seed_order(records, seeds)
+
+
+def run_ray(spec: EvalSpec, seeds: list[int], workers: int = 2, address: str | None = None,
+            chunk_size: int | None = None, on_chunk: Callable[[int], None] | None = None) -> list[dict]:
+    """One Ray task per chunk, on the cluster at ``address`` or on a local instance with ``workers`` CPUs.
+
+    An already initialised Ray (e.g. by the caller) is used as it is and left running.
+    """
+    try:
+        import ray
+    except ImportError as err:
+        raise RuntimeError("--backend ray needs Ray: pip install 'ray[default]'") from err
+    started = False
+    if not ray.is_initialized():
+        kwargs = {"include_dashboard": False, "log_to_driver": False}
+        if address:
+            ray.init(address=address, **kwargs)
+        else:
+            ray.init(num_cpus=workers, **kwargs)
+        started = True
+    try:
+        remote = ray.remote(num_cpus=1)(run_chunk)
+        spec_ref = ray.put(spec)  # one copy of the weights in the object store, shared by all tasks
+        chunks = chunk_seeds(seeds, max(workers, int(ray.cluster_resources().get("CPU", workers))), chunk_size)
+        pending = [remote.remote(spec_ref, c) for c in chunks]
+        records: list[dict] = []
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            part = ray.get(done[0])
+            records += part
+            if on_chunk:
+                on_chunk(len(part))
+    finally:
+        if started:  # only shut down (or disconnect from) what this call started
+            ray.shutdown()
+    return _in_seed_order(records, seeds)
+
+
+def _in_seed_order(records: list[dict], seeds: list[int]) -> list[dict]:
+    by_seed = {r["seed"]: r for r in records}
+    return [by_seed[int(s)] for s in seeds]
+
+
+def run_episodes(spec: EvalSpec, seeds: list[int], *, workers: int = 2, backend: str = "local",
+                 address: str | None = None, chunk_size: int | None = None, progress: bool = False) -> list[dict]:
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    bar = Progress(len(seeds), progress)
+    if backend == "ray":
+        return run_ray(spec, seeds, workers, address, chunk_size, bar.add)
+    return run_local(spec, seeds, workers, chunk_size, bar.add)
