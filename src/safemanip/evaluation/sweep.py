@@ -1,0 +1,429 @@
+"""Experiment sweeps: a named grid of policies x N x selectors x semantics, run cell by cell, resumable,
+rendered as the paper's figure and a markdown table from the stored results alone.
+
+A sweep config is a JSON file (shipped ones live in ``evaluation/sweeps/``; a path to your own works
+too)::
+
+  {"name": "fig5", "title": "...", "figure": "fig5" | "fig6" | "table",
+   "episodes": 2000, "seed": 0, "judge": "conservative" | "ground-truth",
+   "policies": ["policies/rarl-k2-conservative.safetensors", ...],   each entry may also be
+                                               {"path": ..., "n_objects": [...], "semantics": [...]}
+                                               to give that policy its own N and semantics
+   "n_objects": [3, 4, 5, 6], "semantics": [null | "2 fragile, 3 durable", ...],
+   "selectors": ["static-knn", "dynamic-knn"], "constraints": ["conservative"],
+   "pairs": [["dynamic-vlm", "vlm"], ...],      optional: (selector, constraints) pairs instead of
+                                               the product of selectors x constraints
+   "k_equals_n_selector": "full",              optional: selector used when k == N (the full-state
+                                               policy sees every object in its training layout)
+   "table": {"rows": ["k"], "columns": ["n_objects", "selector"]}}
+
+Policy files are named ``{algorithm}-k{k}-{constraints}.safetensors``, so a cell knows its k (and how
+to train the policy) before the file exists. Cells with k > N are not applicable and left out; a
+cell whose policy file is missing is reported as skipped, with the command that trains it.
+
+Layout of the output folder (default ``results/sweeps/NAME``)::
+
+  cells/<cell id>.json         the cell's parameters and summary (written last: its presence = done)
+  cells/<cell id>/episodes.csv per-episode records; cells/<cell id>/summary.json the full summary
+  NAME.png, NAME.md            the figure and the table, rebuilt from cells/*.json by --render-only
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+from dataclasses import asdict, dataclass
+from importlib import resources
+from pathlib import Path
+
+from safemanip.evaluation.episode import CATEGORIES
+
+POLICY_NAME = re.compile(r"(?P<algorithm>[a-z0-9]+)-k(?P<k>\d+)-(?P<constraints>conservative|all)$")
+FIGURES = ("fig5", "fig6", "table")
+DEFAULT_ROOT = Path("results/sweeps")
+
+
+class SweepError(ValueError):
+    pass
+
+
+@dataclass(frozen=True)
+class Cell:
+    policy: str
+    algorithm: str
+    k: int
+    policy_constraints: str
+    n_objects: int
+    semantics: str | None
+    selector: str
+    constraints: str
+    judge: str
+    episodes: int
+    seed: int
+
+    @property
+    def id(self) -> str:
+        sem = "any" if not self.semantics else re.sub(r"[^a-z0-9]+", "-", self.semantics.lower()).strip("-")
+        return (f"{Path(self.policy).stem}__N{self.n_objects}__{sem}__{self.selector}__{self.constraints}"
+                f"__{self.judge}")
+
+    def train_command(self) -> str:
+        run = f"runs/{Path(self.policy).stem}"
+        return (f"safemanip train --algorithm {self.algorithm} --k {self.k} --constraints {self.policy_constraints} "
+                f"--out {run} && cp {run}/policy.safetensors {self.policy}")
+
+
+# ------------------------------------------------------------------------------------------ configs
+def available() -> list[str]:
+    folder = resources.files("safemanip.evaluation").joinpath("sweeps")
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".json"))
+
+
+def load_config(name_or_path: str) -> dict:
+    """A shipped sweep by name (``fig5``) or a JSON file by path; validated."""
+    path = Path(name_or_path)
+    if path.suffix == ".json" and path.exists():
+        text = path.read_text()
+    else:
+        res = resources.files("safemanip.evaluation").joinpath("sweeps", f"{name_or_path}.json")
+        if not res.is_file():
+            raise SweepError(f"no sweep named {name_or_path!r}; shipped sweeps: {', '.join(available())} "
+                             f"(or pass the path of a sweep .json file)")
+        text = res.read_text()
+    try:
+        cfg = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise SweepError(f"sweep {name_or_path!r} is not valid JSON: {err}") from err
+    _validate(cfg, name_or_path)
+    return cfg
+
+
+def _validate(cfg: dict, where: str) -> None:
+    from safemanip.evaluation.harness import JUDGES
+    from safemanip.selection.selectors import CONSTRAINT_SELECTORS, OBJECT_SELECTORS
+
+    problems = []
+    for key in ("name", "figure", "episodes", "policies", "n_objects", "judge"):
+        if key not in cfg:
+            problems.append(f"missing key {key!r}")
+    if problems:
+        raise SweepError(f"sweep {where}: " + "; ".join(problems))
+    if cfg["figure"] not in FIGURES:
+        problems.append(f"figure must be one of {FIGURES}")
+    if cfg["judge"] not in JUDGES:
+        problems.append(f"judge must be one of {list(JUDGES)}")
+    for entry in cfg["policies"]:
+        if isinstance(entry, dict) and (set(entry) - {"path", "n_objects", "semantics"} or "path" not in entry):
+            problems.append(f"policy entry {entry} must be a path or {{'path', 'n_objects', 'semantics'}}")
+            continue
+        p = entry["path"] if isinstance(entry, dict) else entry
+        if not POLICY_NAME.fullmatch(Path(p).stem):
+            problems.append(f"policy {p!r} is not named ALGORITHM-kK-CONSTRAINTS.safetensors "
+                            f"(e.g. policies/rarl-k2-conservative.safetensors)")
+    pairs = cfg.get("pairs") or [(s, c) for s in cfg.get("selectors", []) for c in cfg.get("constraints", ["conservative"])]
+    if not pairs:
+        problems.append("give 'selectors' (and optionally 'constraints') or 'pairs'")
+    for s, c in pairs:
+        if s not in OBJECT_SELECTORS:
+            problems.append(f"unknown selector {s!r}")
+        if c not in CONSTRAINT_SELECTORS:
+            problems.append(f"unknown constraint selector {c!r}")
+    all_semantics = list(cfg.get("semantics", [None])) + [sem for e in cfg["policies"] if isinstance(e, dict)
+                                                            for sem in e.get("semantics", [])]
+    for sem in all_semantics:
+        if sem is not None:
+            from safemanip.scene.config import parse_semantics
+            try:
+                parse_semantics(sem)
+            except ValueError as err:
+                problems.append(str(err))
+    extra = cfg.get("k_equals_n_selector")
+    if extra is not None and extra not in OBJECT_SELECTORS:
+        problems.append(f"unknown k_equals_n_selector {extra!r}")
+    if problems:
+        raise SweepError(f"sweep {where}: " + "; ".join(problems))
+
+
+def cells_of(cfg: dict, episodes: int | None = None) -> list[Cell]:
+    """The grid's applicable cells, in a stable order.
+
+    Left out: k > N (the policy has more slots than objects) and semantics that do not describe N
+    objects (so one config can pair each N with its own semantics). Duplicates (k == N cells that all
+    map to ``k_equals_n_selector``) are merged.
+    """
+    from safemanip.scene.config import parse_semantics
+
+    episodes = int(episodes or cfg["episodes"])
+    pairs = cfg.get("pairs") or [(s, c) for s in cfg["selectors"] for c in cfg.get("constraints", ["conservative"])]
+    out: dict[str, Cell] = {}
+    for entry in cfg["policies"]:
+        own = entry if isinstance(entry, dict) else {}
+        policy = own.get("path", entry)
+        m = POLICY_NAME.fullmatch(Path(policy).stem)
+        k = int(m["k"])
+        for n in own.get("n_objects", cfg["n_objects"]):
+            for sem in own.get("semantics", cfg.get("semantics", [None])):
+                if sem is not None and len(parse_semantics(sem)) != n:
+                    continue
+                for selector, constraints in pairs:
+                    if k > n:
+                        continue
+                    if k == n and cfg.get("k_equals_n_selector"):
+                        selector = cfg["k_equals_n_selector"]
+                    cell = Cell(policy, m["algorithm"], k, m["constraints"], int(n), sem, selector, constraints,
+                                cfg["judge"], episodes, int(cfg.get("seed", 0)))
+                    out.setdefault(cell.id, cell)
+    return list(out.values())
+
+
+# ------------------------------------------------------------------------------------------ running
+def _done(path: Path, cell: Cell) -> bool:
+    if not path.exists():
+        return False
+    try:
+        stored = json.loads(path.read_text())["cell"]
+    except (json.JSONDecodeError, KeyError):
+        return False  # a damaged result file is simply redone
+    return stored == asdict(cell)
+
+
+def run_sweep(name: str, *, episodes: int | None = None, out: str | None = None, workers: int = 2,
+              backend: str = "local", address: str | None = None, render_only: bool = False,
+              progress: bool = True, log=print) -> dict:
+    """Run the cells not done yet, then render. Returns {"ran", "done", "skipped", "failed", "figure", "table"}."""
+    from safemanip.evaluation.harness import EvalRequest, evaluate
+
+    cfg = load_config(name)
+    root = Path(out) if out else DEFAULT_ROOT / cfg["name"]
+    cells_dir = root / "cells"
+    status = {"ran": [], "done": [], "skipped": [], "failed": []}
+    if not render_only:
+        cells = cells_of(cfg, episodes)
+        log(f"sweep {cfg['name']}: {len(cells)} cells, {cells[0].episodes if cells else 0} episodes each -> {root}")
+        for i, cell in enumerate(cells, 1):
+            result_path = cells_dir / f"{cell.id}.json"
+            tag = f"[{i}/{len(cells)}] {cell.id}"
+            if _done(result_path, cell):
+                status["done"].append(cell.id)
+                log(f"{tag}: done already")
+                continue
+            if not Path(cell.policy).exists():
+                status["skipped"].append({"cell": cell.id, "policy": cell.policy, "train": cell.train_command()})
+                log(f"{tag}: skipped, no policy file {cell.policy}; make it with:\n    {cell.train_command()}")
+                continue
+            req = EvalRequest(policy=cell.policy, n_objects=cell.n_objects, semantics=cell.semantics,
+                              selector=cell.selector, constraints=cell.constraints, judge=cell.judge,
+                              episodes=cell.episodes, seed=cell.seed, workers=workers, backend=backend,
+                              address=address, out=str(cells_dir / cell.id), progress=progress)
+            try:
+                _check_policy_name(cell)
+                report = evaluate(req)
+            except ValueError as err:  # e.g. the file's k disagrees with its name: report, go on with the rest
+                status["failed"].append({"cell": cell.id, "error": str(err)})
+                log(f"{tag}: failed: {err}")
+                continue
+            summary = {k: v for k, v in report["summary"].items() if k not in ("request", "policy_meta")}
+            tmp = result_path.with_suffix(".json.tmp")
+            tmp.write_text(json.dumps({"cell": asdict(cell), "summary": summary}, indent=1))
+            tmp.replace(result_path)
+            status["ran"].append(cell.id)
+            s = summary["success"]
+            log(f"{tag}: success {100 * s['rate']:.1f}% [{100 * s['ci95'][0]:.1f}, {100 * s['ci95'][1]:.1f}]")
+    results = load_results(root)
+    status["figure"], status["table"] = render(cfg, results, root)
+    log(f"wrote {status['table']}" + (f" and {status['figure']}" if status["figure"] else ""))
+    if status["skipped"]:
+        log(f"{len(status['skipped'])} cell(s) skipped for missing policies (train commands above)")
+    return status
+
+
+def _check_policy_name(cell: Cell) -> None:
+    from safemanip.rl.checkpoint import load_policy
+
+    _, meta = load_policy(cell.policy)
+    if int(meta.get("k", -1)) != cell.k or meta.get("constraints") != cell.policy_constraints:
+        raise SweepError(f"{cell.policy} holds a k={meta.get('k')} {meta.get('constraints')} policy, but its name "
+                         f"says k={cell.k} {cell.policy_constraints}: rename the file or fix the sweep")
+
+
+def load_results(root: Path) -> list[dict]:
+    out = []
+    for path in sorted((Path(root) / "cells").glob("*.json")):
+        try:
+            out.append(json.loads(path.read_text()))
+        except json.JSONDecodeError:
+            print(f"warning: ignoring unreadable result {path}", file=sys.stderr)
+    return out
+
+
+# ------------------------------------------------------------------------------------------ rendering
+def _pct(summary: dict, key: str) -> float:
+    if key in ("success", "safety_violation"):
+        return 100 * summary[key]["rate"]
+    return 100 * summary["categories"][key]["rate"]
+
+
+def _fmt(summary: dict, key: str = "success") -> str:
+    entry = summary[key] if key in ("success", "safety_violation") else summary["categories"][key]
+    lo, hi = entry["ci95"]
+    return f"{100 * entry['rate']:.1f} [{100 * lo:.1f}, {100 * hi:.1f}]"
+
+
+def _pairs(cfg: dict) -> list:
+    return [tuple(p) for p in cfg.get("pairs") or
+            [(s, c) for s in cfg["selectors"] for c in cfg.get("constraints", ["conservative"])]]
+
+
+def _orderer(cfg: dict):
+    """Sort key for tuples of cell values named ``keys``: the order the config lists them in, numbers by value."""
+    listed = {"selector": [s for s, _ in _pairs(cfg)] + [cfg.get("k_equals_n_selector")],
+              "constraints": [c for _, c in _pairs(cfg)],
+              "semantics": ["any" if s is None else s for s in cfg.get("semantics", [None])]
+              + [s for e in cfg["policies"] if isinstance(e, dict) for s in e.get("semantics", [])]}
+
+    def one(name, value):
+        if isinstance(value, (int, float)):
+            return (0, value, "")
+        seq = listed.get(name, [])
+        return (1, seq.index(value) if value in seq else len(seq), str(value))
+
+    return lambda keys, values: tuple(one(k, v) for k, v in zip(keys, values))
+
+
+def markdown_table(cfg: dict, results: list[dict]) -> str:
+    lines = [f"# {cfg.get('title', cfg['name'])}", ""]
+    if cfg.get("description"):
+        lines += [cfg["description"], ""]
+    if not results:
+        return "\n".join(lines + ["No results yet: run `safemanip sweep " + cfg["name"] + "`."]) + "\n"
+    pivot = cfg.get("table")
+    if pivot:
+        rows, cols = pivot["rows"], pivot["columns"]
+        order = _orderer(cfg)
+        key = lambda r, ks: tuple(r["cell"][k] if r["cell"][k] is not None else "any" for k in ks)  # noqa: E731
+        full = cfg.get("k_equals_n_selector")
+        # a k == N cell stands for every selector column of its N (the paper plots it on both curves)
+        expanded = []
+        for r in results:
+            if full and r["cell"]["selector"] == full and "selector" in cols:
+                for sel in dict.fromkeys(s for s, _ in _pairs(cfg)):
+                    expanded.append(({**r["cell"], "selector": sel}, r["summary"], " (k = N)"))
+            else:
+                expanded.append((r["cell"], r["summary"], ""))
+        cells = {(key({"cell": c}, rows), key({"cell": c}, cols)): (s, mark) for c, s, mark in expanded}
+        row_keys = sorted({rk for rk, _ in cells}, key=lambda t: order(rows, t))
+        col_keys = sorted({ck for _, ck in cells}, key=lambda t: order(cols, t))
+        lines.append("Success rate (%), 95% Wilson interval in brackets" +
+                     ("; (k = N): the full-state policy, the same cell in every selector column:" if full else ":"))
+        lines.append("")
+        lines.append("| " + " / ".join(rows) + " | " + " | ".join(" ".join(map(str, c)) for c in col_keys) + " |")
+        lines.append("|" + "---|" * (len(col_keys) + 1))
+        for rk in row_keys:
+            vals = [(_fmt(cells[(rk, ck)][0]) + cells[(rk, ck)][1]) if (rk, ck) in cells else "n/a" for ck in col_keys]
+            lines.append("| " + " / ".join(map(str, rk)) + " | " + " | ".join(vals) + " |")
+        lines.append("")
+    lines.append("All cells (rates in %, 95% Wilson interval for success):")
+    lines.append("")
+    head = ["policy", "k", "N", "semantics", "selector", "constraints", "episodes", "success", "violation",
+            "top box / OOB", "coll. unselected", "coll. selected", "soft", "timeout", "unstable", "mean length"]
+    lines.append("| " + " | ".join(head) + " |")
+    lines.append("|" + "---|" * len(head))
+    order = lambda r: (r["cell"]["k"], r["cell"]["n_objects"], str(r["cell"]["semantics"]), r["cell"]["selector"],  # noqa: E731
+                       r["cell"]["constraints"], r["cell"]["policy"])
+    for r in sorted(results, key=order):
+        c, s = r["cell"], r["summary"]
+        lines.append("| " + " | ".join([
+            Path(c["policy"]).stem, str(c["k"]), str(c["n_objects"]), c["semantics"] or "any", c["selector"],
+            c["constraints"], str(s["episodes"]), _fmt(s), f"{_pct(s, 'safety_violation'):.1f}",
+            f"{_pct(s, 'top_box') + _pct(s, 'out_of_workspace'):.1f}", f"{_pct(s, 'collision_unselected'):.1f}",
+            f"{_pct(s, 'collision_selected'):.1f}", f"{_pct(s, 'soft_contact'):.1f}", f"{_pct(s, 'timeout'):.1f}",
+            f"{_pct(s, 'unstable'):.1f}", f"{s['mean_length']:.1f}"]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _plot_fig5(cfg: dict, results: list[dict], path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = [s for s in ("static-knn", "dynamic-knn") if any(r["cell"]["selector"] == s for r in results)]
+    panels = panels or sorted({r["cell"]["selector"] for r in results if r["cell"]["k"] != r["cell"]["n_objects"]})
+    full = [r for r in results if r["cell"]["k"] == r["cell"]["n_objects"]]
+    ks = sorted({r["cell"]["k"] for r in results})
+    colours = {k: plt.cm.viridis(i / max(1, len(ks) - 1)) for i, k in enumerate(ks)}
+    fig, axes = plt.subplots(1, max(1, len(panels)), figsize=(5 * max(1, len(panels)), 4), sharey=True, squeeze=False)
+    for ax, sel in zip(axes[0], panels or ["full"]):
+        for k in ks:
+            pts = sorted((r["cell"]["n_objects"], r["summary"]) for r in results
+                         if r["cell"]["k"] == k and (r["cell"]["selector"] == sel or r in full))
+            if not pts:
+                continue
+            xs = [n for n, _ in pts]
+            ys = [100 * s["success"]["rate"] for _, s in pts]
+            err = [[y - 100 * s["success"]["ci95"][0] for y, (_, s) in zip(ys, pts)],
+                   [100 * s["success"]["ci95"][1] - y for y, (_, s) in zip(ys, pts)]]
+            ax.errorbar(xs, ys, yerr=err, marker="o", capsize=3, color=colours[k], label=f"k = {k}")
+        fx = [(r["cell"]["n_objects"], 100 * r["summary"]["success"]["rate"]) for r in full]
+        if fx:
+            ax.scatter(*zip(*fx), marker="*", s=160, color="black", zorder=5, label="k = N (full state)")
+        ax.set_title(sel)
+        ax.set_xlabel("objects in the scene N")
+        ax.set_xticks(sorted({r["cell"]["n_objects"] for r in results}))
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("success rate (%)")
+    axes[0][-1].legend(fontsize=8)
+    fig.suptitle(cfg.get("title", cfg["name"]), fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+FIG6_STACK = (("success", ("success",), "tab:green"), ("top box / OOB", ("top_box", "out_of_workspace"), "tab:orange"),
+              ("collision with unselected", ("collision_unselected",), "tab:red"),
+              ("collision with selected", ("collision_selected",), "tab:purple"),
+              ("other (soft, timeout, unstable)", ("soft_contact", "timeout", "unstable"), "tab:gray"))
+
+
+def _plot_fig6(cfg: dict, results: list[dict], path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    order = _orderer(cfg)
+    results = sorted(results, key=lambda r: order(("k", "n_objects", "selector", "constraints"),
+                                                  [r["cell"][x] for x in ("k", "n_objects", "selector", "constraints")]))
+    labels = [f"k={r['cell']['k']}, N={r['cell']['n_objects']}\n{r['cell']['selector']}" for r in results]
+    fig, ax = plt.subplots(figsize=(max(5, 1.2 * len(results) + 2), 4.5))
+    bottom = np.zeros(len(results))
+    for name, keys, colour in FIG6_STACK:
+        vals = np.array([sum(100 * r["summary"]["categories"][k]["rate"] for k in keys) for r in results])
+        ax.bar(range(len(results)), vals, bottom=bottom, color=colour, label=name)
+        bottom += vals
+    ax.set_xticks(range(len(results)))
+    ax.set_xticklabels(labels, fontsize=8)
+    ax.set_ylabel("episodes (%)")
+    ax.set_ylim(0, 100)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    ax.set_title(cfg.get("title", cfg["name"]), fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def render(cfg: dict, results: list[dict], root: Path) -> tuple[str | None, str]:
+    """Write NAME.md (always) and NAME.png (fig5/fig6, when there are results) from stored results only."""
+    root = Path(root)
+    root.mkdir(parents=True, exist_ok=True)
+    table = root / f"{cfg['name']}.md"
+    table.write_text(markdown_table(cfg, results))
+    figure = None
+    if results and cfg["figure"] in ("fig5", "fig6"):
+        figure = root / f"{cfg['name']}.png"
+        (_plot_fig5 if cfg["figure"] == "fig5" else _plot_fig6)(cfg, results, figure)
+    return (str(figure) if figure else None), str(table)
+
+
+__all__ = ["Cell", "SweepError", "available", "load_config", "cells_of", "run_sweep", "load_results", "render",
+           "markdown_table", "CATEGORIES"]

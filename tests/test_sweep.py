@@ -1,0 +1,117 @@
+"""Sweeps: shipped configs, cell grid, resume (a stored cell is not rerun), missing policies, rendering."""
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+import pytest
+
+from safemanip.evaluation.episode import CATEGORIES
+from safemanip.evaluation.sweep import SweepError, available, cells_of, load_config, render, run_sweep
+from test_evaluation import make_policy
+
+
+def test_shipped_sweeps_load_and_form_the_paper_grids():
+    assert {"fig5", "fig6", "table1"} <= set(available())
+    fig5 = cells_of(load_config("fig5"))
+    assert all(c.k <= c.n_objects for c in fig5)
+    assert {c.selector for c in fig5 if c.k < c.n_objects} == {"static-knn", "dynamic-knn"}
+    assert {c.selector for c in fig5 if c.k == c.n_objects} == {"full"}
+    assert len(fig5) == 2 * (4 + 3 + 2 + 1) + 4  # k<N cells x 2 selectors + one full-state cell per N
+    fig6 = cells_of(load_config("fig6"))
+    assert {c.n_objects for c in fig6} == {6}
+    assert all(c.episodes == 2000 for c in fig5 + fig6)
+    assert cells_of(load_config("fig5"), episodes=10)[0].episodes == 10
+
+
+def test_bad_sweep_configs_are_rejected(tmp_path):
+    with pytest.raises(SweepError, match="no sweep named 'fig9'"):
+        load_config("fig9")
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"name": "bad", "figure": "fig5", "episodes": 1, "judge": "conservative",
+                               "policies": ["policies/k2.safetensors"], "n_objects": [3], "selectors": ["nearest"]}))
+    with pytest.raises(SweepError) as err:
+        load_config(str(bad))
+    assert "ALGORITHM-kK-CONSTRAINTS" in str(err.value) and "unknown selector 'nearest'" in str(err.value)
+
+
+def _config(tmp_path, policies):
+    cfg = {"name": "mini", "title": "mini", "figure": "fig5", "episodes": 2, "seed": 0, "judge": "conservative",
+           "policies": policies, "n_objects": [3], "semantics": [None], "selectors": ["static-knn", "dynamic-knn"],
+           "constraints": ["conservative"], "table": {"rows": ["k"], "columns": ["n_objects", "selector"]}}
+    path = tmp_path / "mini.json"
+    path.write_text(json.dumps(cfg))
+    return str(path)
+
+
+def test_resume_skips_stored_cells_and_reports_missing_policies(tmp_path):
+    pol = make_policy(tmp_path / "rarl-k2-conservative.safetensors", 2)
+    missing = str(tmp_path / "rarl-k3-all.safetensors")
+    name = _config(tmp_path, [pol, missing])
+    out = tmp_path / "out"
+    cells = cells_of(load_config(name))
+    static = next(c for c in cells if c.selector == "static-knn" and c.k == 2)
+    (out / "cells").mkdir(parents=True)
+    stored = {"cell": asdict(static), "summary": _fake_summary(0.5)}
+    (out / "cells" / f"{static.id}.json").write_text(json.dumps(stored))
+
+    logs = []
+    status = run_sweep(name, out=str(out), workers=1, progress=False, log=logs.append)
+    assert status["done"] == [static.id]
+    assert len(status["ran"]) == 1 and "dynamic-knn" in status["ran"][0]
+    assert len(status["skipped"]) == 2  # both selectors for the k=3 policy
+    assert "safemanip train --algorithm rarl --k 3 --constraints all" in status["skipped"][0]["train"]
+    assert any("skipped, no policy file" in line for line in logs)
+    # the stored cell was not touched; the new one has its records next to it
+    assert json.loads((out / "cells" / f"{static.id}.json").read_text()) == stored
+    ran = status["ran"][0]
+    assert (out / "cells" / ran / "episodes.csv").exists()
+    assert Path(status["table"]).exists() and Path(status["figure"]).exists()
+    # a second run reruns nothing; asking for more episodes redoes the cells
+    again = run_sweep(name, out=str(out), workers=1, progress=False, log=lambda s: None)
+    assert again["ran"] == [] and sorted(again["done"]) == sorted([static.id, ran])
+
+
+def _fake_summary(success, n=100, **fails):
+    counts = {c: 0 for c in CATEGORIES}
+    counts["success"] = int(success * n)
+    counts.update(fails)
+    counts["timeout"] += n - sum(counts.values())
+
+    def rate(c):
+        return {"count": c, "rate": c / n, "ci95": [max(0, c / n - 0.1), min(1, c / n + 0.1)]}
+
+    viol = sum(counts[c] for c in ("top_box", "out_of_workspace", "collision_unselected", "collision_selected",
+                                   "soft_contact"))
+    return {"episodes": n, "success": rate(counts["success"]), "safety_violation": rate(viol),
+            "categories": {c: rate(v) for c, v in counts.items()}, "mean_length": 100.0}
+
+
+@pytest.mark.parametrize("name", ["fig5", "fig6", "table1"])
+def test_render_only_uses_stored_results(tmp_path, name):
+    cfg = load_config(name)
+    results = []
+    for i, cell in enumerate(cells_of(cfg)):
+        fails = {"collision_unselected": 10 if cell.selector == "static-knn" else 3, "top_box": 5,
+                 "collision_selected": 7}
+        results.append({"cell": asdict(cell), "summary": _fake_summary(0.3 + 0.05 * (i % 5), **fails)})
+    root = tmp_path / name
+    (root / "cells").mkdir(parents=True)
+    for r in results:
+        (root / "cells" / f"{r['cell']['policy'].split('/')[-1]}-{r['cell']['n_objects']}-"
+                          f"{r['cell']['selector']}-{r['cell']['semantics']}.json").write_text(json.dumps(r))
+    status = run_sweep(name, out=str(root), render_only=True, log=lambda s: None)
+    assert status["ran"] == [] and status["skipped"] == []
+    table = Path(status["table"]).read_text()
+    assert "| k |" in table or "| semantics |" in table
+    assert table.count("\n| rarl-") == len(results)  # one row per cell in the long table
+    if cfg["figure"] in ("fig5", "fig6"):
+        png = Path(status["figure"])
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+    else:
+        assert status["figure"] is None
+
+
+def test_render_with_no_results_says_how_to_get_them(tmp_path):
+    fig, table = render(load_config("fig6"), [], tmp_path)
+    assert fig is None and "safemanip sweep fig6" in Path(table).read_text()
