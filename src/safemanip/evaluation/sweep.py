@@ -30,14 +30,13 @@ Layout of the output folder (default ``results/sweeps/NAME``)::
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 import sys
 from dataclasses import asdict, dataclass
 from importlib import resources
 from pathlib import Path
-
-from safemanip.evaluation.episode import CATEGORIES
 
 POLICY_NAME = re.compile(r"(?P<algorithm>[a-z0-9]+)-k(?P<k>\d+)-(?P<constraints>conservative|all)$")
 FIGURES = ("fig5", "fig6", "table")
@@ -192,50 +191,76 @@ def run_sweep(name: str, *, episodes: int | None = None, out: str | None = None,
               backend: str = "local", address: str | None = None, render_only: bool = False,
               progress: bool = True, log=print) -> dict:
     """Run the cells not done yet, then render. Returns {"ran", "done", "skipped", "failed", "figure", "table"}."""
-    from safemanip.evaluation.harness import EvalRequest, evaluate
-
     cfg = load_config(name)
     root = Path(out) if out else DEFAULT_ROOT / cfg["name"]
-    cells_dir = root / "cells"
     status = {"ran": [], "done": [], "skipped": [], "failed": []}
     if not render_only:
-        cells = cells_of(cfg, episodes)
-        log(f"sweep {cfg['name']}: {len(cells)} cells, {cells[0].episodes if cells else 0} episodes each -> {root}")
-        for i, cell in enumerate(cells, 1):
-            result_path = cells_dir / f"{cell.id}.json"
-            tag = f"[{i}/{len(cells)}] {cell.id}"
-            if _done(result_path, cell):
-                status["done"].append(cell.id)
-                log(f"{tag}: done already")
-                continue
-            if not Path(cell.policy).exists():
-                status["skipped"].append({"cell": cell.id, "policy": cell.policy, "train": cell.train_command()})
-                log(f"{tag}: skipped, no policy file {cell.policy}; make it with:\n    {cell.train_command()}")
-                continue
-            req = EvalRequest(policy=cell.policy, n_objects=cell.n_objects, semantics=cell.semantics,
-                              selector=cell.selector, constraints=cell.constraints, judge=cell.judge,
-                              episodes=cell.episodes, seed=cell.seed, workers=workers, backend=backend,
-                              address=address, out=str(cells_dir / cell.id), progress=progress)
-            try:
-                _check_policy_name(cell)
-                report = evaluate(req)
-            except ValueError as err:  # e.g. the file's k disagrees with its name: report, go on with the rest
-                status["failed"].append({"cell": cell.id, "error": str(err)})
-                log(f"{tag}: failed: {err}")
-                continue
-            summary = {k: v for k, v in report["summary"].items() if k not in ("request", "policy_meta")}
-            tmp = result_path.with_suffix(".json.tmp")
-            tmp.write_text(json.dumps({"cell": asdict(cell), "summary": summary}, indent=1))
-            tmp.replace(result_path)
-            status["ran"].append(cell.id)
-            s = summary["success"]
-            log(f"{tag}: success {100 * s['rate']:.1f}% [{100 * s['ci95'][0]:.1f}, {100 * s['ci95'][1]:.1f}]")
+        with _ray_session(backend, address, workers):
+            _run_cells(cfg, cells_of(cfg, episodes), root, status, workers, backend, address, progress, log)
     results = load_results(root)
     status["figure"], status["table"] = render(cfg, results, root)
     log(f"wrote {status['table']}" + (f" and {status['figure']}" if status["figure"] else ""))
     if status["skipped"]:
         log(f"{len(status['skipped'])} cell(s) skipped for missing policies (train commands above)")
     return status
+
+
+@contextlib.contextmanager
+def _ray_session(backend: str, address: str | None, workers: int):
+    """One Ray connection for the whole sweep (starting Ray per cell would cost seconds each time)."""
+    if backend != "ray":
+        yield
+        return
+    import ray
+
+    if ray.is_initialized():
+        yield
+        return
+    kwargs = {"include_dashboard": False, "log_to_driver": False}
+    if address:
+        ray.init(address=address, **kwargs)
+    else:
+        ray.init(num_cpus=workers, **kwargs)
+    try:
+        yield
+    finally:
+        ray.shutdown()
+
+
+def _run_cells(cfg, cells, root, status, workers, backend, address, progress, log) -> None:
+    from safemanip.evaluation.harness import EvalRequest, evaluate
+
+    cells_dir = root / "cells"
+    log(f"sweep {cfg['name']}: {len(cells)} cells, {cells[0].episodes if cells else 0} episodes each -> {root}")
+    for i, cell in enumerate(cells, 1):
+        result_path = cells_dir / f"{cell.id}.json"
+        tag = f"[{i}/{len(cells)}] {cell.id}"
+        if _done(result_path, cell):
+            status["done"].append(cell.id)
+            log(f"{tag}: done already")
+            continue
+        if not Path(cell.policy).exists():
+            status["skipped"].append({"cell": cell.id, "policy": cell.policy, "train": cell.train_command()})
+            log(f"{tag}: skipped, no policy file {cell.policy}; make it with:\n    {cell.train_command()}")
+            continue
+        req = EvalRequest(policy=cell.policy, n_objects=cell.n_objects, semantics=cell.semantics,
+                          selector=cell.selector, constraints=cell.constraints, judge=cell.judge,
+                          episodes=cell.episodes, seed=cell.seed, workers=workers, backend=backend,
+                          address=address, out=str(cells_dir / cell.id), progress=progress)
+        try:
+            _check_policy_name(cell)
+            report = evaluate(req)
+        except ValueError as err:  # e.g. the file's k disagrees with its name: report, go on with the rest
+            status["failed"].append({"cell": cell.id, "error": str(err)})
+            log(f"{tag}: failed: {err}")
+            continue
+        summary = {k: v for k, v in report["summary"].items() if k not in ("request", "policy_meta")}
+        tmp = result_path.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps({"cell": asdict(cell), "summary": summary}, indent=1))
+        tmp.replace(result_path)
+        status["ran"].append(cell.id)
+        s = summary["success"]
+        log(f"{tag}: success {100 * s['rate']:.1f}% [{100 * s['ci95'][0]:.1f}, {100 * s['ci95'][1]:.1f}]")
 
 
 def _check_policy_name(cell: Cell) -> None:
@@ -426,4 +451,4 @@ def render(cfg: dict, results: list[dict], root: Path) -> tuple[str | None, str]
 
 
 __all__ = ["Cell", "SweepError", "available", "load_config", "cells_of", "run_sweep", "load_results", "render",
-           "markdown_table", "CATEGORIES"]
+           "markdown_table"]
