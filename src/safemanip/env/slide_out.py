@@ -36,7 +36,7 @@ class SlideOutEnv(gym.Env):
     def __init__(self, n_objects: int = 4, names: Sequence[str] | None = None, classes: Sequence[str] | str | None = None,
                  constraints: str | Sequence[str] = "ground_truth", near_path_fraction: float = 0.5,
                  render_mode: str | None = None, max_episode_steps: int = 300, max_step: float = 0.1,
-                 thresholds: M.Thresholds = M.DEFAULT_THRESHOLDS, sleep: bool = True,
+                 thresholds: M.Thresholds = M.DEFAULT_THRESHOLDS, sleep: bool = True, slot_order: str = "index",
                  render_size: tuple[int, int] = (480, 640)):
         if isinstance(classes, str):
             from safemanip.scene.config import parse_semantics
@@ -52,6 +52,9 @@ class SlideOutEnv(gym.Env):
             bad = [c for c in constraints if c not in CONSTRAINT_TYPES]
             if bad or len(constraints) != n_objects:
                 raise ValueError(f"give one constraint per object from {CONSTRAINT_TYPES}; got {list(constraints)}")
+        if slot_order not in ("index", "nearest"):
+            raise ValueError(f"slot_order must be 'index' or 'nearest', got {slot_order!r}")
+        self.slot_order = slot_order
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         if max_episode_steps < 1 or max_step <= 0:
@@ -249,8 +252,16 @@ class SlideOutEnv(gym.Env):
         return event, (worst_obj if event in ("failure:hard", "failure:soft") else None)
 
     # ------------------------------------------------------------------ outputs
+    def slot_ids(self, state: SceneState) -> np.ndarray:
+        """Object ids in observation-slot order: scene order, or nearest to the held box first."""
+        if self.slot_order == "index" or len(self.names) < 2:
+            return np.arange(len(self.names))
+        d = np.linalg.norm(state.obj_pos[:, :2] - state.bottom_pos[:2], axis=1)
+        return np.argsort(d, kind="stable")
+
     def _observe(self, state: SceneState) -> np.ndarray:
-        return build_observation(state, range(len(self.names)), self._constraint_onehot)
+        ids = self.slot_ids(state)
+        return build_observation(state, ids, self._constraint_onehot[ids])
 
     def _info(self, terms, event: str, culprit: int | None) -> dict:
         margins = {"l1": terms["l1"], "l2": terms["l2"], "g_dyn": terms["g_dyn"], "g_oob": terms["g_oob"]}

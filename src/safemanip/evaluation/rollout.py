@@ -30,7 +30,7 @@ def run_episode(env, act, seed: int) -> EpisodeRecord:
 def _worker(args) -> list[dict]:
     policy_arrays, env_kwargs, seeds = args
     from safemanip.rl.collector import env_factory
-    from safemanip.rl.networks import NumpyActor
+    from safemanip.rl.numpy_actor import NumpyActor
 
     actor = NumpyActor(policy_arrays)
     env = env_factory(env_kwargs)

@@ -81,7 +81,7 @@ def load_policy(path: str | Path):
     """(NumpyActor, meta) from a policy file, or from a run folder / checkpoint (its current actor)."""
     from safetensors import safe_open
 
-    from safemanip.rl.networks import NumpyActor
+    from safemanip.rl.numpy_actor import NumpyActor
 
     path = Path(path)
     if path.is_dir():

@@ -1,4 +1,4 @@
-"""Actor and critic MLPs (paper: three layers of 256 ReLU units each) and a NumPy actor for rollouts."""
+"""Actor and critic MLPs (paper: three layers of 256 ReLU units each)."""
 
 from __future__ import annotations
 
@@ -42,19 +42,4 @@ def actor_arrays(actor: Actor) -> list[np.ndarray]:
     return [p.detach().cpu().numpy().astype(np.float32).copy() for p in actor.net.parameters()]
 
 
-class NumpyActor:
-    """The actor's forward pass in NumPy: no torch import in rollout workers, and faster at batch 1-8."""
-
-    def __init__(self, arrays: list[np.ndarray]):
-        self.set(arrays)
-
-    def set(self, arrays: list[np.ndarray]) -> None:
-        self.weights = [(arrays[i].T.copy(), arrays[i + 1]) for i in range(0, len(arrays), 2)]
-
-    def __call__(self, obs: np.ndarray) -> np.ndarray:
-        x = np.asarray(obs, dtype=np.float32)
-        for i, (w, b) in enumerate(self.weights):
-            x = x @ w + b
-            if i < len(self.weights) - 1:
-                np.maximum(x, 0.0, out=x)
-        return np.tanh(x)
+from safemanip.rl.numpy_actor import NumpyActor  # noqa: E402,F401  (re-exported for callers that have torch anyway)
