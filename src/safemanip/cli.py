@@ -9,8 +9,8 @@ import sys
 def _cmd_demo(args) -> int:
     from safemanip.demo import print_report, run_demo
 
-    result = run_demo(out_dir=args.out, controller=args.controller, seed=args.seed, n_objects=args.n_objects,
-                      video=not args.no_video, camera=args.camera)
+    result = run_demo(out_dir=args.out, controller=args.controller, policy=args.policy, seed=args.seed,
+                      n_objects=args.n_objects, video=not args.no_video, camera=args.camera, selector=args.selector)
     print_report(result, result.summary)
     return 0
 
@@ -57,7 +57,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     demo = sub.add_parser("demo", help="one rollout in the default cluttered scene: video, JSON summary, report")
     demo.add_argument("--out", default="demo_output", help="output folder (default: demo_output)")
-    demo.add_argument("--controller", default="scripted", choices=["scripted"])
+    demo.add_argument("--controller", default="policy", choices=["policy", "scripted"],
+                      help="the shipped reach-avoid policy (default) or the scripted baseline")
+    demo.add_argument("--policy", default="rarl-k2-conservative", help="policy file or shipped policy name")
+    demo.add_argument("--selector", default="dynamic-knn", help="object selector feeding the policy its k objects")
     demo.add_argument("--seed", type=int, default=7)
     demo.add_argument("--n-objects", type=int, default=4)
     demo.add_argument("--camera", default="front", choices=["front", "top"])

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -11,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 DEFAULT_SCENE = {"n_objects": 4, "seed": 7}
+DEFAULT_POLICY = "rarl-k2-conservative"  # shipped in src/safemanip/policies/
 
 
 @dataclass
@@ -36,46 +36,83 @@ def write_video(frames: list[np.ndarray], path_stem: Path, fps: int) -> Path:
         return path
 
 
-def run_demo(out_dir: str | Path = "demo_output", controller: str = "scripted", policy: str | None = None,
+def run_demo(out_dir: str | Path = "demo_output", controller: str = "policy", policy: str = DEFAULT_POLICY,
              seed: int = DEFAULT_SCENE["seed"], n_objects: int = DEFAULT_SCENE["n_objects"], video: bool = True,
-             camera: str = "front") -> DemoResult:
+             camera: str = "front", selector: str = "dynamic-knn") -> DemoResult:
+    """One rollout in the default cluttered scene (ground-truth semantics judge every object).
+
+    ``controller="policy"``: a shipped or trained policy sees the ``selector``'s k relevant objects
+    through the reducer; ``"scripted"``: the fast-pull-then-slide baseline that ignores the clutter.
+    """
     from safemanip.control.scripted import ScriptedController
     from safemanip.env.slide_out import SlideOutEnv
 
-    os.environ.setdefault("MUJOCO_GL", "egl")
+    if controller not in ("policy", "scripted"):
+        raise ValueError(f"unknown controller {controller!r}: use 'policy' or 'scripted'")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    env = SlideOutEnv(n_objects=n_objects, render_mode="rgb_array" if video else None)
-    obs, info = env.reset(seed=seed)
+    env = SlideOutEnv(n_objects=n_objects, render_mode="rgb_array" if video else None, slot_order="nearest")
+    frames: list[np.ndarray] = []
+    trace: list[dict] = []
+    selections: list[list[str]] = []
+
+    def record(env, info, ids=()) -> None:
+        trace.append({"t": info["t"], "l": info["l"], "g": info["g"], **info["margins"]})
+        selections.append([env.names[i] for i in ids])
+        if video:
+            frames.append(env.render_camera(camera))
+
+    t0 = time.perf_counter()
     if controller == "scripted":
         agent = ScriptedController()
         agent.reset()
-        act = lambda obs, info: agent.act(info, env)  # noqa: E731
-        agent_desc = "scripted (fast pull, then a slide to the goal; ignores clutter)"
+        _, info = env.reset(seed=seed)
+        record(env, info)
+        while True:
+            _, _, terminated, truncated, info = env.step(agent.act(info, env))
+            record(env, info)
+            if terminated or truncated:
+                break
+        event, culprit, steps = info["event"], info["object"], info["t"]
+        agent_desc = "scripted (fast pull, then a slide to the goal; ignores the clutter)"
     else:
-        raise ValueError(f"unknown controller {controller!r}: use 'scripted'")
-    frames = [env.render_camera(camera)] if video else []
-    trace = [{"t": 0, "l": info["l"], "g": info["g"], **info["margins"]}]
-    t0 = time.perf_counter()
-    while True:
-        obs, _, terminated, truncated, info = env.step(act(obs, info))
-        trace.append({"t": info["t"], "l": info["l"], "g": info["g"], **info["margins"]})
-        if video:
-            frames.append(env.render_camera(camera))
-        if terminated or truncated:
-            break
+        from safemanip.evaluation.episode import run_episode
+        from safemanip.rl.checkpoint import load_policy, resolve_policy
+        from safemanip.selection.reducer import Reducer
+        from safemanip.selection.selectors import make_constraint_selector, make_object_selector
+
+        actor, meta = load_policy(policy)
+        k = int(meta["k"])
+        if n_objects < k:
+            raise ValueError(f"the policy needs at least k={k} objects in the scene; use --n-objects {k} or more")
+        reducer = Reducer(k, meta["constraints"])
+        constraint_selector = make_constraint_selector("conservative" if meta["constraints"] == "conservative"
+                                                       else "ground-truth")
+        record_reset = {"done": False}
+
+        def after_reset(env) -> None:
+            if not record_reset["done"]:
+                state = env.scene_state()
+                record(env, env._info(env._margins(state), "running", None))
+                record_reset["done"] = True
+
+        result = run_episode(env, actor, reducer, make_object_selector(selector), constraint_selector, seed,
+                             after_reset=after_reset, on_step=record)
+        event, culprit, steps = result["event"], result["object"] or None, result["length"]
+        agent_desc = (f"policy {resolve_policy(policy).name} ({meta['algorithm']}, k={k}, {meta['constraints']}) "
+                      f"seeing the {k} objects picked by {selector}")
     wall = time.perf_counter() - t0
     video_path = write_video(frames, out / "rollout", env.metadata["render_fps"]) if video else None
     summary = {
-        "outcome": info["event"], "steps": info["t"], "object": info["object"], "controller": agent_desc,
+        "outcome": event, "steps": steps, "object": culprit, "controller": agent_desc,
         "scene": {"seed": seed, "objects": list(env.names), "constraints": list(env.constraints)},
         "video": str(video_path) if video_path else None, "wall_time_s": round(wall, 3),
-        "margins_over_time": trace,
+        "margins_over_time": trace, "selected_over_time": selections,
     }
     summary_path = out / "summary.json"
     summary_path.write_text(json.dumps(summary, indent=1))
     env.close()
-    return DemoResult(info["event"], info["t"], info["object"], video_path, summary_path)
+    return DemoResult(event, steps, culprit, video_path, summary_path)
 
 
 def print_report(result: DemoResult, summary_path: Path) -> None:

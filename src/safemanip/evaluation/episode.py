@@ -55,10 +55,11 @@ def _stat(selector, field: str) -> int:
 
 def run_episode(env, actor: Callable[[np.ndarray], np.ndarray], reducer: Reducer, object_selector: ObjectSelector,
                 constraint_selector: ConstraintSelector, seed: int, *, builder: EnvViewBuilder | None = None,
-                after_reset: Callable | None = None) -> dict:
+                after_reset: Callable | None = None, on_step: Callable | None = None) -> dict:
     """Roll one episode out and return its record (plain types, ready for CSV/JSON).
 
-    ``after_reset(env)`` may edit the scene right after the reset (tests place objects by hand).
+    ``after_reset(env)`` may edit the scene right after the reset (tests place objects by hand);
+    ``on_step(env, info, ids)`` sees every step (the demo records frames and margins with it).
     """
     builder = builder or EnvViewBuilder()
     env.reset(seed=int(seed))
@@ -92,6 +93,8 @@ def run_episode(env, actor: Callable[[np.ndarray], np.ndarray], reducer: Reducer
         obs = reducer(state, ids, assigned)
         action = actor(obs[None])[0]
         _, _, terminated, truncated, info = env.step(action)
+        if on_step is not None:
+            on_step(env, info, ids)
         if terminated or truncated:
             break
         t = int(info["t"])

@@ -77,13 +77,27 @@ class PolicyFileError(ValueError):
     pass
 
 
+SHIPPED_POLICIES = Path(__file__).resolve().parent.parent / "policies"
+
+
+def resolve_policy(name_or_path: str | Path) -> Path:
+    """A path as given if it exists, else a shipped policy by name (``rarl-k2-conservative``) or file name."""
+    path = Path(name_or_path)
+    if path.exists():
+        return path
+    for candidate in (SHIPPED_POLICIES / path.name, SHIPPED_POLICIES / f"{path.name}.safetensors"):
+        if candidate.exists():
+            return candidate
+    return path
+
+
 def load_policy(path: str | Path):
-    """(NumpyActor, meta) from a policy file, or from a run folder / checkpoint (its current actor)."""
+    """(NumpyActor, meta) from a policy file, a shipped policy's name, or a run folder (its policy)."""
     from safetensors import safe_open
 
     from safemanip.rl.numpy_actor import NumpyActor
 
-    path = Path(path)
+    path = resolve_policy(path)
     if path.is_dir():
         candidates = [path / "policy.safetensors", path / "best.safetensors"]
         found = next((c for c in candidates if c.exists()), None)
@@ -91,7 +105,8 @@ def load_policy(path: str | Path):
             raise PolicyFileError(f"{path} holds no policy.safetensors or best.safetensors; pass a policy file")
         path = found
     if not path.exists():
-        raise PolicyFileError(f"no policy file at {path}; shipped policies are under policies/ (see README)")
+        shipped = sorted(p.stem for p in SHIPPED_POLICIES.glob("*.safetensors"))
+        raise PolicyFileError(f"no policy file at {path}; pass a .safetensors file or a shipped policy name: {shipped}")
     with safe_open(str(path), framework="numpy") as f:
         header = f.metadata() or {}
     if header.get("format") != POLICY_FORMAT:
