@@ -68,4 +68,4 @@ def build_observation(state: SceneState, object_ids, constraints_onehot: np.ndar
     slots[:, 0:3] = state.obj_pos[ids]
     slots[:, 3:6] = state.obj_vel[ids]
     slots[:, 6:9] = constraints_onehot
-    return np.clip(obs, -10.0, 10.0, out=obs)
+    return obs.clip(-10.0, 10.0, out=obs)
