@@ -54,7 +54,7 @@ def run_collector(worker: int, env_kwargs: dict, seed: int, n_envs: int, data_q,
             time.sleep(0.002)
             continue
         if actor is None or counters[0] < random_steps:
-            actions = rng.uniform(-1, 1, size=(n_envs, 3))
+            actions = rng.uniform(-1, 1, size=(n_envs, *envs[0].action_space.shape))
         else:
             actions = actor(np.stack(obs))
             actions = np.clip(actions + rng.normal(0, noise_std, size=actions.shape), -1, 1)

@@ -41,6 +41,11 @@ class TrainConfig:
     polyak: float = 0.995
     hidden: tuple[int, ...] = (256, 256, 256)
     max_episode_steps: int = 300
+    # -- another env (e.g. the toy system, safemanip.rl.toy)
+    env_factory: str | None = None
+    """'module:Class' of the env to train on instead of the slide-out env (None: slide-out)."""
+    extra_env_kwargs: dict = field(default_factory=dict)
+    """Keyword arguments for ``env_factory``'s class (only with env_factory set)."""
     # -- TD3 options
     twin_critics: bool = True
     """Two critics, target = min of the two (TD3)."""
@@ -96,11 +101,18 @@ class TrainConfig:
             problems.append(f"hidden must list positive layer widths, got {self.hidden}")
         if self.policy_delay < 1 or self.torch_threads < 1:
             problems.append("policy_delay and torch_threads must be >= 1")
+        if self.env_factory is not None and (not isinstance(self.env_factory, str)
+                                             or len(self.env_factory.split(":")) != 2 or "" in self.env_factory.split(":")):
+            problems.append(f"env_factory must be 'module:Class', got {self.env_factory!r}")
+        if not isinstance(self.extra_env_kwargs, dict) or (self.extra_env_kwargs and self.env_factory is None):
+            problems.append("extra_env_kwargs must be a dict, and is only used with env_factory set")
         if problems:
             raise ConfigError("invalid training config:\n  - " + "\n  - ".join(problems))
 
     @property
     def env_kwargs(self) -> dict:
+        if self.env_factory is not None:
+            return {"factory": self.env_factory, **self.extra_env_kwargs}
         return {"n_objects": self.n_objects, "constraints": "random" if self.constraints == "all" else "conservative",
                 "near_path_fraction": self.near_path_fraction, "max_episode_steps": self.max_episode_steps}
 
