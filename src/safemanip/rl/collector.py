@@ -24,7 +24,7 @@ def env_factory(env_kwargs: dict):
 def run_collector(worker: int, env_kwargs: dict, seed: int, n_envs: int, data_q, weights_q, stop, counters,
                   random_steps: int, noise_std: float, learning_starts: int, steps_per_update: float) -> None:
     """Worker main loop. ``counters[0]`` is the total env steps (all workers), ``counters[1]`` learner updates."""
-    from safemanip.rl.networks import NumpyActor
+    from safemanip.rl.numpy_actor import NumpyActor
 
     rng = np.random.default_rng(seed + 7919 * worker)
     envs = [env_factory(env_kwargs) for _ in range(n_envs)]
