@@ -24,6 +24,8 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from safemanip.rl.numpy_actor import NumpyActor
+
 from safemanip.selection.selectors import SelectorOptions
 
 BACKENDS = ("local", "ray")
@@ -57,22 +59,8 @@ def one_blas_thread() -> Iterator[None]:
         yield
 
 
-class NumpyPolicy:
-    """The actor's forward pass, the same arithmetic as ``rl.networks.NumpyActor`` (a test checks they agree
-    bit for bit). Kept here because importing ``rl.networks`` imports torch, several seconds and a few
-    hundred MB in every worker process for a forward pass that needs only NumPy."""
-
-    def __init__(self, arrays: list[np.ndarray]):
-        self.weights = [(np.asarray(arrays[i]).T.copy(), np.asarray(arrays[i + 1]))
-                        for i in range(0, len(arrays), 2)]
-
-    def __call__(self, obs: np.ndarray) -> np.ndarray:
-        x = np.asarray(obs, dtype=np.float32)
-        for i, (w, b) in enumerate(self.weights):
-            x = x @ w + b
-            if i < len(self.weights) - 1:
-                np.maximum(x, 0.0, out=x)
-        return np.tanh(x)
+# the actor's forward pass in NumPy; its module does not import torch, so workers start fast
+NumpyPolicy = NumpyActor
 
 
 def run_chunk(spec: EvalSpec, seeds: list[int]) -> list[dict]:
