@@ -145,20 +145,21 @@ def test_shipped_model_against_the_grid(grid, states):
 # ------------------------------------------------------------------ training from scratch
 @pytest.mark.slow
 def test_brief_training_learns_better_than_chance(tmp_path, grid):
-    """20 s of train() on the toy: the sign of the learned V already agrees with the grid's well beyond
+    """A short train() on the toy (24k env steps, ~11k updates): the sign of the learned V already agrees with the grid's well beyond
     chance (Cohen's kappa corrects the agreement for the two sign rates; an untrained critic scores about 0).
     Faster target tracking and a higher learning rate than the shipped model, to learn something in 20 s."""
     from safemanip.rl.train import train
 
-    cfg = toy.toy_config(str(tmp_path / "run"), minutes=0.3, gamma=0.995, gamma_start=0.95, polyak=0.98,
+    # a budget in env steps, not minutes: the same amount of learning on a loaded or an idle machine
+    cfg = toy.toy_config(str(tmp_path / "run"), minutes=None, total_env_steps=24_000, gamma=0.995, gamma_start=0.95, polyak=0.98,
                          batch_size=128, learning_rate=2e-3, env_steps_per_update=2.0, learning_starts=1000,
                          random_steps=2000, eval_every_s=60.0, eval_episodes=10, checkpoint_every_s=60.0)
     run = train(cfg, progress=False)
     updates = json.loads((run / "summary.json").read_text())["updates"]
-    assert updates > 1500, f"only {updates} learner updates in 18 s: is the machine overloaded?"
+    assert updates > 10_000, f"only {updates} learner updates for 24k env steps"
     actor, critic, _ = toy.load_model(run / "checkpoint" / "state.safetensors")
     states = toy.sample_states(np.random.default_rng(7), 3000)
     m = toy.ground_truth_metrics(actor, critic, grid, states, cfg.gamma, ceiling=False)
     print(toy.metrics_table(m))
-    assert m["kappa"] > 0.1 and m["balanced_accuracy"] > 0.55
+    assert m["kappa"] > 0.08 and m["balanced_accuracy"] > 0.55  # measured 0.15 and 0.61; untrained: about 0 and 0.5
     assert m["false_safe_of_unsafe"] <= 0.03
