@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from collections import Counter
 
 
 def wilson_interval(successes: int, trials: int, z: float = 1.959964) -> tuple[float, float]:
@@ -21,13 +20,3 @@ def rate_line(label: str, count: int, total: int, width: int = 28) -> str:
     lo, hi = wilson_interval(count, total)
     pct = 100.0 * count / total if total else 0.0
     return f"{label:<{width}} {pct:5.1f}% [{100 * lo:5.1f}, {100 * hi:5.1f}]  ({count}/{total})"
-
-
-def summarize_events(events: list[str]) -> dict:
-    counts = Counter(events)
-    n = len(events)
-    out = {"episodes": n, "counts": dict(counts)}
-    for key in ("success",):
-        lo, hi = wilson_interval(counts[key], n)
-        out[key] = {"rate": counts[key] / n if n else 0.0, "ci95": [lo, hi]}
-    return out
