@@ -50,10 +50,10 @@ class ScalarLog:
         self.file.close()
 
 
-def policy_meta(cfg: TrainConfig, obs_dim: int, eval_result: dict | None, env_steps: int, updates: int,
+def policy_meta(cfg: TrainConfig, obs_dim: int, act_dim: int, eval_result: dict | None, env_steps: int, updates: int,
                 wall_s: float, command: str | None) -> dict:
     return {"algorithm": cfg.algorithm, "k": cfg.n_objects, "constraints": cfg.constraints, "obs_dim": obs_dim,
-            "act_dim": 3, "hidden": list(cfg.hidden), "env_kwargs": cfg.env_kwargs, "train_config": json.loads(cfg.to_json()),
+            "act_dim": act_dim, "hidden": list(cfg.hidden), "env_kwargs": cfg.env_kwargs, "train_config": json.loads(cfg.to_json()),
             "env_steps": env_steps, "updates": updates, "wall_s": round(wall_s, 1), "eval": eval_result,
             "train_command": command}
 
@@ -161,7 +161,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True, command
         if result["success"] >= best["success"]:
             best = result
             save_policy(run_dir / "best.safetensors", actor_arrays(learner.actor),
-                        policy_meta(cfg, obs_dim, result, env_steps, updates, elapsed(), command))
+                        policy_meta(cfg, obs_dim, act_dim, result, env_steps, updates, elapsed(), command))
 
     try:
         while True:
@@ -229,7 +229,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True, command
     run_eval()
     save_checkpoint()
     save_policy(run_dir / "policy.safetensors", actor_arrays(learner.actor),
-                policy_meta(cfg, obs_dim, last_eval_result, env_steps, updates, elapsed(), command))
+                policy_meta(cfg, obs_dim, act_dim, last_eval_result, env_steps, updates, elapsed(), command))
     log.close()
     summary = {"env_steps": env_steps, "updates": updates, "wall_s": round(elapsed(), 1), "final_eval": last_eval_result,
                "best_eval": best}
