@@ -136,8 +136,6 @@ class SlideOutEnv(gym.Env):
                               for i, name in enumerate(self.names) if self._object_checked[i]}
         self._t = 0
         state = self.scene_state()
-        self.ee_path = [state.ee_pos.copy()]
-        self.box_path = [state.bottom_pos.copy()]
         terms = self._margins(state)
         return self._observe(state), self._info(terms, "running", None)
 
@@ -159,8 +157,6 @@ class SlideOutEnv(gym.Env):
             info = self._info(self._last_terms, "unstable", None)
             return obs, 0.0, True, False, info
         state = self.scene_state()
-        self.ee_path.append(state.ee_pos.copy())
-        self.box_path.append(state.bottom_pos.copy())
         terms = self._margins(state)
         l, g = terms["l"], terms["g"]
         event, culprit = "running", None
