@@ -8,7 +8,6 @@ tests/data/toy_reach_avoid/README.md.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
