@@ -14,7 +14,9 @@ from gymnasium.utils.env_checker import check_env
 
 import safemanip  # noqa: F401  (registers the env)
 from safemanip.control.scripted import ScriptedController
-from safemanip.env.observation import ROBOT_DIM, SLOT_DIM, observation_dim
+from safemanip.env.margins import margin_no_contact, margin_soft_contact
+from safemanip.env.observation import (ROBOT_DIM, SLOT_DIM, build_observation, encode_constraints,
+                                       observation_dim)
 from safemanip.env.slide_out import EVENTS, SlideOutEnv
 from safemanip.scene.catalog import CONSTRAINT_TYPES, load_catalog
 from safemanip.scene.config import GEOMETRY, SceneConfigError
@@ -120,6 +122,56 @@ def test_observation_layout_matches_the_simulation():
     np.testing.assert_allclose(slots[:, 0:3], d.xpos[idx.object_bodies], atol=1e-6)
     assert slots[:, 6:9].tolist() == [[0, 1, 0], [1, 0, 0], [0, 0, 1]]
     assert info["constraints"] == ("soft_contact", "no_contact", "any_contact")
+
+
+@pytest.mark.parametrize("slot_order", ["index", "nearest"])
+def test_fast_observation_path_equals_the_public_builder(slot_order):
+    """The env gathers its observation in one pass; it must equal ``build_observation`` on the same state,
+    and the margins it reports must equal the pure functions' on that state, throughout a rollout."""
+    env = SlideOutEnv(n_objects=4, constraints=("soft_contact", "no_contact", "any_contact", "soft_contact"),
+                      slot_order=slot_order)
+    ctrl = ScriptedController()
+    obs, info = env.reset(seed=3)
+    ctrl.reset()
+    for _ in range(40):
+        state = env.scene_state()
+        ids = env.slot_ids(state)
+        expected = build_observation(state, ids, encode_constraints(env.constraints)[ids])
+        np.testing.assert_array_equal(obs, expected)
+        rel = np.linalg.norm(state.obj_vel - state.bottom_vel, axis=1)
+        distances = env.object_distances()
+        for i, c in enumerate(env.constraints):
+            key = f"{'g_soft' if c == 'soft_contact' else 'g_hard'}:{i}:{env.names[i]}"
+            if c == "no_contact":
+                assert info["margins"][key] == pytest.approx(margin_no_contact(distances[i], 0.01), abs=1e-12)
+            elif c == "soft_contact":
+                assert info["margins"][key] == pytest.approx(
+                    margin_soft_contact(distances[i], rel[i], 0.01, 1.0), abs=1e-12)
+            else:
+                assert key not in info["margins"]
+        obs, _, terminated, truncated, info = env.step(ctrl.act(info, env))
+        if terminated or truncated:
+            break
+
+
+def test_scene_states_are_not_overwritten_by_later_steps():
+    env = SlideOutEnv(n_objects=2)
+    env.reset(seed=0)
+    env.step(np.array([0.0, 1.0, 0.0]))
+    state = env.scene_state()
+    kept = [a.copy() for a in state]
+    env.step(np.array([0.0, 1.0, 0.0]))
+    for before, now in zip(kept, state):
+        np.testing.assert_array_equal(before, now)
+    assert not np.allclose(env.scene_state().bottom_pos, state.bottom_pos)
+
+
+def test_scene_caches_stay_bounded_under_random_object_draws():
+    env = SlideOutEnv(n_objects=2, constraints="random")
+    for seed in range(80):
+        env.reset(seed=seed)
+    assert 0 < len(env._sims) <= 64 and len(env._tables) <= 64 and len(env._radii) <= 64
+    env.step(np.zeros(3))  # the scene in use survived the evictions
 
 
 def test_initial_states_are_safe_and_not_done():

@@ -8,6 +8,8 @@ ramps from where the end-effector is to ``ee + action * max_step`` over the cont
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
 from typing import Any, Sequence
 
 import gymnasium as gym
@@ -15,7 +17,8 @@ import mujoco
 import numpy as np
 
 from safemanip.env import margins as M
-from safemanip.env.observation import (SceneState, build_observation, encode_constraints, observation_space)
+from safemanip.env.observation import (ROBOT_DIM, SLOT_DIM, SceneState, build_observation, encode_constraints,
+                                       observation_dim, observation_space)
 from safemanip.scene.builder import CONTROL_DT, TIMESTEP, SceneIndex, build_model
 from safemanip.scene.catalog import CONSTRAINT_TYPES, load_catalog, names_of_class
 from safemanip.scene.config import GEOMETRY, SceneConfig
@@ -66,10 +69,13 @@ class SlideOutEnv(gym.Env):
         self.render_size = render_size
         self.geometry = GEOMETRY
         self.hand = CartesianHand()
+        self._speed_scale = self.max_step / CONTROL_DT
         self.n_substeps = int(round(CONTROL_DT / TIMESTEP))
         self.observation_space = observation_space(n_objects)
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
         self._sims: dict[tuple[str, ...], tuple] = {}
+        self._radii: dict[tuple[str, ...], np.ndarray] = {}
+        self._tables: dict[tuple, tuple] = {}
         self._renderer = None
         self.model = self.data = None
         self.names: tuple[str, ...] = ()
@@ -80,12 +86,36 @@ class SlideOutEnv(gym.Env):
         if names not in self._sims:
             model = build_model(names, self.sleep)
             data = mujoco.MjData(model)
-            self._sims[names] = (model, data, SceneIndex.from_model(model, len(names)), self.hand.bind(model))
+            index, binding = SceneIndex.from_model(model, len(names)), self.hand.bind(model)
+            _evict_oldest(self._sims)
+            self._sims[names] = (model, data, index, binding, _StateGather.build(index, binding))
         return self._sims[names]
+
+    def _footprint_radii(self, names: tuple[str, ...]) -> np.ndarray:
+        if names not in self._radii:
+            catalog = load_catalog()
+            _evict_oldest(self._radii)
+            self._radii[names] = np.array([catalog[n].footprint_radius for n in names])
+        return self._radii[names]
+
+    def _constraint_tables(self, names: tuple[str, ...], constraints: tuple[str, ...]) -> tuple:
+        """Per-episode lookups that depend only on (names, constraints): computed once per combination."""
+        key = (names, constraints)
+        if key not in self._tables:
+            onehot = encode_constraints(constraints)
+            soft = [c == "soft_contact" for c in constraints]
+            checked = [i for i, c in enumerate(constraints) if c != "any_contact"]
+            margin_names = {i: f"{'g_soft' if soft[i] else 'g_hard'}:{i}:{names[i]}" for i in checked}
+            _evict_oldest(self._tables)
+            self._tables[key] = (onehot, self.gather.observation_template(onehot), np.array(soft, dtype=bool), soft,
+                                 checked, margin_names)
+        return self._tables[key]
 
     def _choose_names(self, rng: np.random.Generator) -> tuple[str, ...]:
         if self.config.names is not None:
             return self.config.names
+        if self.config.n_objects == 0:
+            return ()
         if self.config.classes is None:
             pool = sorted(load_catalog())
             return tuple(rng.choice(pool, size=self.config.n_objects, replace=False).tolist())
@@ -114,11 +144,9 @@ class SlideOutEnv(gym.Env):
         if len(names) != self.config.n_objects:
             raise ValueError(f"options['names'] must hold {self.config.n_objects} names, got {list(names)}")
         self.names = names
-        self.model, self.data, self.index, self.binding = self._sim(names)
+        self.model, self.data, self.index, self.binding, self.gather = self._sim(names)
         self.constraints = self._choose_constraints(options.get("constraints", self.constraint_mode), rng)
-        catalog = load_catalog()
-        radii = np.array([catalog[n].footprint_radius for n in names])
-        placement = sample_placement(radii, rng, self.config.near_path_fraction, self.geometry)
+        placement = sample_placement(self._footprint_radii(names), rng, self.config.near_path_fraction, self.geometry)
         m, d, idx = self.model, self.data, self.index
         mujoco.mj_resetData(m, d)
         for i in range(len(names)):
@@ -126,37 +154,34 @@ class SlideOutEnv(gym.Env):
             d.qpos[adr:adr + 3] = (*placement.xy[i], 0.0005)
             d.qpos[adr + 3:adr + 7] = (np.cos(placement.yaw[i] / 2), 0, 0, np.sin(placement.yaw[i] / 2))
         mujoco.mj_forward(m, d)
-        self._constraint_onehot = encode_constraints(self.constraints)
         self._top_start = d.xpos[idx.top_box_body, :2].tolist()
-        self._object_is_soft = np.array([c == "soft_contact" for c in self.constraints])
-        self._object_checked = np.array([c != "any_contact" for c in self.constraints], dtype=bool)
-        self._checked_ids = np.flatnonzero(self._object_checked)
-        self._manipulated = [int(g) for g in self.index.manipulated_geoms]
-        self._margin_names = {i: f"{'g_soft' if self._object_is_soft[i] else 'g_hard'}:{i}:{name}"
-                              for i, name in enumerate(self.names) if self._object_checked[i]}
+        (self._constraint_onehot, self._obs_template, self._object_is_soft, self._soft_flags, self._checked_list,
+         self._margin_names) = self._constraint_tables(names, self.constraints)
         self._t = 0
-        state = self.scene_state()
+        state = self._last_good_state = self.scene_state()
         terms = self._margins(state)
         return self._observe(state), self._info(terms, "running", None)
 
     # ------------------------------------------------------------------ dynamics
     def step(self, action):
-        a = np.asarray(action, dtype=np.float64).reshape(3).clip(-1.0, 1.0)
+        a = np.asarray(action, dtype=np.float64).reshape(3)
         m, d = self.model, self.data
-        self.hand.command_velocity(d, self.binding, a * (self.max_step / CONTROL_DT))
+        # minimum/maximum rather than np.clip: same result, a third of the call overhead
+        self.hand.command_velocity(d, self.binding, np.maximum(np.minimum(a, 1.0), -1.0) * self._speed_scale)
         time_before = d.time
         mujoco.mj_step(m, d, nstep=self.n_substeps)
         self._t += 1
         # On a bad qpos/qvel/qacc MuJoCo resets the whole MjData (time back to 0) and carries on: time that
-        # did not advance by the full control step is the cheap trace of it; NaNs that slipped through are
-        # caught by the finiteness check
-        unstable = d.time < time_before + 0.5 * CONTROL_DT or not np.isfinite(d.qvel).all()
+        # did not advance by the full control step is the cheap trace of it; NaNs that slipped through into
+        # the state the env reads are caught by the finiteness check
+        unstable = d.time < time_before + 0.5 * CONTROL_DT
+        if not unstable:
+            state = self.scene_state()
+            unstable = not math.isfinite(self._state_sum)
         if unstable:
-            state = self._last_state
-            obs = self._observe(state)
-            info = self._info(self._last_terms, "unstable", None)
-            return obs, 0.0, True, False, info
-        state = self.scene_state()
+            state = self._last_good_state
+            self._last_state = state
+            return self._observe(state), 0.0, True, False, self._info(self._last_terms, "unstable", None)
         terms = self._margins(state)
         l, g = terms["l"], terms["g"]
         event, culprit = "running", None
@@ -172,15 +197,20 @@ class SlideOutEnv(gym.Env):
         return self._observe(state), float(min(l, g)), terminated, truncated, self._info(terms, event, culprit)
 
     def scene_state(self) -> SceneState:
-        d, idx = self.data, self.index
-        top_v = idx.top_box_qvel
-        ee_vel = self.hand.ee_velocity(d, self.binding).copy()
-        state = SceneState(
-            ee_pos=self.hand.ee_position(d, self.binding).copy(), ee_vel=ee_vel,
-            bottom_pos=d.xpos[idx.bottom_box_body].copy(), bottom_vel=ee_vel,  # rigidly held
-            top_pos=d.xpos[idx.top_box_body].copy(), top_vel=d.qvel[top_v:top_v + 3].copy(),
-            obj_pos=d.xpos[idx.object_bodies], obj_vel=d.qvel[idx.object_qvel_flat].reshape(-1, 3))
-        self._last_state = state
+        """The paper's full state, read from MjData with two gathers (arrays are fresh, safe to keep)."""
+        d, gather = self.data, self.gather
+        pos = d.xpos[gather.body_rows]  # (2 + N, 3): bottom box, top box, objects
+        vel = d.qvel[gather.qvel_index]  # (6 + 3N,): hand (= held box), top box, objects' linear velocities
+        flat = np.concatenate((d.site_xpos[gather.ee_site], vel, pos.ravel()))
+        ee_vel = flat[3:6]
+        state = SceneState(ee_pos=flat[0:3], ee_vel=ee_vel, bottom_pos=flat[gather.bottom_pos], bottom_vel=ee_vel,
+                           top_pos=flat[gather.top_pos], top_vel=flat[6:9], obj_pos=flat[gather.obj_pos].reshape(-1, 3),
+                           obj_vel=flat[gather.obj_vel].reshape(-1, 3))
+        self._last_state, self._flat_state = state, flat
+        self._state_values = values = flat.tolist()
+        self._state_sum = sum(values)
+        if math.isfinite(self._state_sum):
+            self._last_good_state = state
         return state
 
     # ------------------------------------------------------------------ margins
@@ -190,28 +220,41 @@ class SlideOutEnv(gym.Env):
         Objects whose bounding sphere is farther than the cap from the box's bounding sphere are not
         queried: their distance is the cap either way.
         """
-        m, d, idx = self.model, self.data, self.index
-        ids = np.arange(len(self.names)) if object_ids is None else np.asarray(object_ids, dtype=int)
-        out = np.full(len(self.names), DISTANCE_CAP)
-        if len(ids) == 0:
-            return out
-        offset = d.xpos[idx.object_bodies[ids]] - d.xpos[idx.bottom_box_body]
-        gap = np.sqrt(np.einsum("ij,ij->i", offset, offset)) - idx.object_reach[ids] - _MANIPULATED_REACH
-        for i in ids[gap < DISTANCE_CAP].tolist():
+        ids = range(len(self.names)) if object_ids is None else [int(i) for i in np.atleast_1d(object_ids)]
+        self.scene_state()
+        out = [DISTANCE_CAP] * len(self.names)
+        for i, dist in zip(ids, self._distances(ids)):
+            out[i] = dist
+        return np.array(out)
+
+    def _distances(self, ids) -> list[float]:
+        """Capped geom distances of objects ``ids``, from the positions the last ``scene_state`` read."""
+        m, d, gather, v = self.model, self.data, self.gather, self._state_values
+        bx, by, bz = v[gather.bottom_pos.start:gather.bottom_pos.start + 3]
+        base = gather.obj_pos.start
+        out = []
+        for i in ids:
+            j = base + 3 * i
+            dx, dy, dz = v[j] - bx, v[j + 1] - by, v[j + 2] - bz
             best = DISTANCE_CAP
-            for g1 in self._manipulated:
-                for g2 in idx.object_geoms[i]:
-                    dist = mujoco.mj_geomDistance(m, d, g1, int(g2), DISTANCE_CAP, None)
+            if math.sqrt(dx * dx + dy * dy + dz * dz) - gather.reach[i] < DISTANCE_CAP:
+                for g1, g2 in gather.geom_pairs[i]:
+                    dist = mujoco.mj_geomDistance(m, d, g1, g2, DISTANCE_CAP, None)
                     if dist < best:
                         best = dist
-            out[i] = best
+            out.append(best)
         return out
 
     def _margins(self, state: SceneState) -> dict[str, Any]:
-        th, geo = self.thresholds, self.geometry
+        if state is not self._last_state:  # a state from an earlier step: re-read its values
+            self._state_values = np.concatenate(
+                (state.ee_pos, state.ee_vel, state.top_vel, state.obj_vel.ravel(), state.bottom_pos, state.top_pos,
+                 state.obj_pos.ravel())).tolist()
+        th, geo, v, gather = self.thresholds, self.geometry, self._state_values, self.gather
         half = geo.box_half_extents
-        bottom = state.bottom_pos[:2].tolist()  # python floats: these margins are scalar maths
-        top = state.top_pos[:2].tolist()
+        b0 = gather.bottom_pos.start
+        bottom = v[b0:b0 + 2]
+        top = v[b0 + 3:b0 + 5]
         terms: dict[str, Any] = {
             "l1": M.margin_out_from_under(bottom, top, half, half, th.out_clearance),
             "l2": M.margin_in_goal(bottom, geo.goal_xy, th.goal_radius),
@@ -219,21 +262,27 @@ class SlideOutEnv(gym.Env):
                                       th.top_box_displacement, th.top_box_min_up),
             "g_oob": M.margin_in_workspace(bottom, geo.table_half_extents, geo.workspace_inset),
         }
-        checked = self._checked_ids
-        object_terms = np.full(len(self.names), np.inf)
-        if len(checked):
-            distances = self.object_distances(checked)
-            hard = distances[checked] - th.collision
-            rel = state.obj_vel[checked] - state.bottom_vel
-            speed = np.sqrt(np.einsum("ij,ij->i", rel, rel))
-            soft = np.maximum(hard, th.relative_speed - speed)  # = margin_soft_contact, vectorised
-            object_terms[checked] = np.where(self._object_is_soft[checked], soft, hard)
-            g_objects = float(object_terms[checked].min())
-        else:
-            distances = np.full(len(self.names), DISTANCE_CAP)
-            g_objects = np.inf
-        terms["objects"] = object_terms
-        terms["distances"] = distances
+        n = len(self.names)
+        object_terms = [math.inf] * n
+        distances = [DISTANCE_CAP] * n
+        g_objects = math.inf
+        checked = self._checked_list
+        if checked:
+            bvx, bvy, bvz = v[3:6]
+            v0 = gather.obj_vel.start
+            for i, dist in zip(checked, self._distances(checked)):
+                distances[i] = dist
+                if self._soft_flags[i]:
+                    j = v0 + 3 * i
+                    speed = math.sqrt((v[j] - bvx) ** 2 + (v[j + 1] - bvy) ** 2 + (v[j + 2] - bvz) ** 2)
+                    term = M.margin_soft_contact(dist, speed, th.collision, th.relative_speed)
+                else:
+                    term = dist - th.collision  # = margin_no_contact
+                object_terms[i] = term
+                if term < g_objects:
+                    g_objects = term
+        terms["objects"] = np.array(object_terms)
+        terms["distances"] = np.array(distances)
         terms["l"] = min(terms["l1"], terms["l2"])
         terms["g"] = float(min(terms["g_dyn"], terms["g_oob"], g_objects))
         self._last_terms = terms
@@ -253,13 +302,21 @@ class SlideOutEnv(gym.Env):
     def slot_ids(self, state: SceneState) -> np.ndarray:
         """Object ids in observation-slot order: scene order, or nearest to the held box first."""
         if self.slot_order == "index" or len(self.names) < 2:
-            return np.arange(len(self.names))
+            return self.gather.index_order
         offset = state.obj_pos[:, :2] - state.bottom_pos[:2]
         return np.argsort(np.einsum("ij,ij->i", offset, offset), kind="stable")
 
     def _observe(self, state: SceneState) -> np.ndarray:
         ids = self.slot_ids(state)
-        return build_observation(state, ids, self._constraint_onehot[ids])
+        if state is not self._last_state:
+            return build_observation(state, ids, self._constraint_onehot[ids])
+        # the same layout as ``build_observation`` (a test holds them equal) as one gather from the flat state
+        obs = self._obs_template.copy()
+        obs[self.gather.observation_targets] = self._flat_state[self.gather.observation_sources(ids)]
+        if self.slot_order != "index":  # the template's one-hots are in index order
+            obs[self.gather.onehot_targets] = self._constraint_onehot[ids].ravel()
+        np.minimum(obs, 10.0, out=obs)
+        return np.maximum(obs, -10.0, out=obs)
 
     def _info(self, terms, event: str, culprit: int | None) -> dict:
         margins = {"l1": terms["l1"], "l2": terms["l2"], "g_dyn": terms["g_dyn"], "g_oob": terms["g_oob"]}
@@ -305,6 +362,75 @@ class SlideOutEnv(gym.Env):
         if self._renderer is not None:
             self._renderer[1].close()
             self._renderer = None
+
+
+_CACHE_SIZE = 64  # scenes (compiled model + data) kept per env: random object draws would otherwise grow without bound
+
+
+def _evict_oldest(cache: dict) -> None:
+    while len(cache) >= _CACHE_SIZE:
+        del cache[next(iter(cache))]
+
+
+@dataclass(frozen=True)
+class _StateGather:
+    """Index arrays, built once per compiled scene, that read the state from MjData in two gathers.
+
+    The flat state is ``[ee_pos(3), hand_vel(3), top_vel(3), obj_vel(3N), bottom_pos(3), top_pos(3), obj_pos(3N)]``
+    (the held box moves with the hand, so the hand's velocity is the box's).
+    """
+
+    ee_site: int
+    body_rows: np.ndarray
+    qvel_index: np.ndarray
+    bottom_pos: slice
+    top_pos: slice
+    obj_pos: slice
+    obj_vel: slice
+    reach: list[float]  # per object: bounding radius of its geoms plus the held box's
+    geom_pairs: list[list[tuple[int, int]]]  # per object: (manipulated geom, object geom) pairs to query
+    index_order: np.ndarray
+    observation_targets: np.ndarray  # observation entries filled from the flat state (all but the one-hots)
+    onehot_targets: np.ndarray  # the one-hot entries, slot by slot
+    robot_sources: np.ndarray  # (18,): flat-state indices of the robot and box part of the observation
+    slot_sources: np.ndarray  # (N, 6): flat-state indices of each object's position and velocity
+    index_sources: np.ndarray  # observation_sources(index_order), the common case, precomputed
+
+    @classmethod
+    def build(cls, index: SceneIndex, binding) -> "_StateGather":
+        n = len(index.object_bodies)
+        p0 = 9 + 3 * n  # start of the positions block
+        bottom, top = slice(p0, p0 + 3), slice(p0 + 3, p0 + 6)
+        obj_pos, obj_vel = slice(p0 + 6, p0 + 6 + 3 * n), slice(9, 9 + 3 * n)
+        robot = np.r_[0:3, 3:6, bottom, 3:6, top, 6:9]
+        slots = np.array([np.r_[p0 + 6 + 3 * i:p0 + 9 + 3 * i, 9 + 3 * i:12 + 3 * i] for i in range(n)],
+                         dtype=np.intp).reshape(n, 6)
+        targets = np.r_[0:ROBOT_DIM, [ROBOT_DIM + SLOT_DIM * s + j for s in range(n) for j in range(6)]].astype(np.intp)
+        manipulated = [int(g) for g in index.manipulated_geoms]
+        return cls(
+            ee_site=int(binding.ee_site),
+            body_rows=np.r_[index.bottom_box_body, index.top_box_body, index.object_bodies].astype(np.intp),
+            qvel_index=np.r_[binding.qvel_adr, np.arange(index.top_box_qvel, index.top_box_qvel + 3),
+                             index.object_qvel_flat].astype(np.intp),
+            bottom_pos=bottom, top_pos=top, obj_pos=obj_pos, obj_vel=obj_vel,
+            reach=[float(r) + _MANIPULATED_REACH for r in index.object_reach],
+            geom_pairs=[[(g1, int(g2)) for g1 in manipulated for g2 in geoms] for geoms in index.object_geoms],
+            index_order=np.arange(n), observation_targets=targets,
+            onehot_targets=np.array([ROBOT_DIM + SLOT_DIM * s + j for s in range(n) for j in range(6, 9)], dtype=np.intp),
+            robot_sources=robot.astype(np.intp), slot_sources=slots,
+            index_sources=np.concatenate((robot, slots.ravel())).astype(np.intp))
+
+    def observation_sources(self, ids: np.ndarray) -> np.ndarray:
+        if ids is self.index_order:
+            return self.index_sources
+        return np.concatenate((self.robot_sources, self.slot_sources[ids].ravel()))
+
+    def observation_template(self, constraints_onehot: np.ndarray) -> np.ndarray:
+        """An observation with only the constraint one-hots filled: they never change within an episode."""
+        n = len(constraints_onehot)
+        obs = np.zeros(observation_dim(n), dtype=np.float32)
+        obs[ROBOT_DIM:].reshape(n, SLOT_DIM)[:, 6:9] = constraints_onehot
+        return obs
 
 
 class TimeoutEvent(gym.Wrapper):

@@ -32,6 +32,21 @@ class HandBinding:
     ee_site: int
     home: np.ndarray  # (3,) world position of the ee site at joint zero
 
+    def __post_init__(self):
+        # the per-step writes use slices where the ids are contiguous (they are, as compiled): a slice
+        # write costs a fraction of a fancy-index write, and this runs every control step
+        self._act = _as_slice(self.act_adr)
+        self._qpos = _as_slice(self.qpos_adr)
+        self._ctrl = _as_slice(self.actuator_ids)
+        self._ctrl_velocity = _as_slice(self.velocity_actuator_ids)
+
+
+def _as_slice(ids: np.ndarray):
+    ids = np.asarray(ids)
+    if len(ids) and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids))):
+        return slice(int(ids[0]), int(ids[0]) + len(ids))
+    return ids
+
 
 class CartesianHand:
     name = "cartesian-hand"
@@ -96,9 +111,10 @@ class CartesianHand:
 
         The set-point restarts at the measured position each call, so a blocked hand never winds up.
         """
-        data.act[binding.act_adr] = data.qpos[binding.qpos_adr]
-        data.ctrl[binding.actuator_ids] = velocity
-        data.ctrl[binding.velocity_actuator_ids] = velocity
+        data.act[binding._act] = data.qpos[binding._qpos]
+        ctrl = data.ctrl
+        ctrl[binding._ctrl] = velocity
+        ctrl[binding._ctrl_velocity] = velocity
 
     @staticmethod
     def ee_position(data, binding: HandBinding) -> np.ndarray:

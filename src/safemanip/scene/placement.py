@@ -7,6 +7,7 @@ the goal would make the task impossible).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,21 +37,23 @@ def _keep_out_rects(geo: TaskGeometry) -> list[tuple[float, float, float, float]
     return [stack]
 
 
-def _free(xy, r, placed_xy, placed_r, geo: TaskGeometry) -> bool:
+def _free(x: float, y: float, r: float, placed: list[tuple[float, float, float]], geo: TaskGeometry,
+          keep_out: list[tuple[float, float, float, float]]) -> bool:
+    """Scalar maths on Python floats: this runs a few times per object on every reset."""
     tx, ty = geo.table_half_extents
-    if abs(xy[0]) > tx - r - 0.03 or abs(xy[1]) > ty - r - 0.03:
+    if abs(x) > tx - r - 0.03 or abs(y) > ty - r - 0.03:
         return False
-    for xmin, xmax, ymin, ymax in _keep_out_rects(geo):
-        cx = min(max(xy[0], xmin), xmax)
-        cy = min(max(xy[1], ymin), ymax)
-        if (xy[0] - cx) ** 2 + (xy[1] - cy) ** 2 < (r + _CLEARANCE) ** 2:
+    for xmin, xmax, ymin, ymax in keep_out:
+        cx = min(max(x, xmin), xmax)
+        cy = min(max(y, ymin), ymax)
+        if (x - cx) ** 2 + (y - cy) ** 2 < (r + _CLEARANCE) ** 2:
             return False
     gx, gy = geo.goal_xy
     goal_clear = geo.goal_radius + geo.box_half_extents[1] + 0.01
-    if np.hypot(xy[0] - gx, xy[1] - gy) < goal_clear + r:
+    if math.hypot(x - gx, y - gy) < goal_clear + r:
         return False
-    for p, pr in zip(placed_xy, placed_r):
-        if np.hypot(xy[0] - p[0], xy[1] - p[1]) < r + pr + _CLEARANCE:
+    for px, py, pr in placed:
+        if math.hypot(x - px, y - py) < r + pr + _CLEARANCE:
             return False
     return True
 
@@ -64,34 +67,37 @@ def sample_placement(radii: np.ndarray, rng: np.random.Generator, near_path_frac
     the free table. Deterministic for a given generator state.
     """
     n = len(radii)
+    if n == 0:  # draws nothing, as the general path would
+        return Placement(xy=np.zeros((0, 2)), yaw=np.zeros(0), near_path=np.zeros(0, dtype=bool))
     n_near = int(round(near_path_fraction * n))
-    start = np.asarray(geometry.path_start_xy)
-    goal = np.asarray(geometry.goal_xy)
-    direction = goal - start
-    normal = np.array([-direction[1], direction[0]]) / np.linalg.norm(direction)
+    sx, sy = (float(v) for v in geometry.path_start_xy)
+    dx, dy = geometry.goal_xy[0] - sx, geometry.goal_xy[1] - sy
+    length = math.sqrt(dx * dx + dy * dy)  # as np.linalg.norm, so placements stay bit-identical
+    nx, ny = -dy / length, dx / length
     tx, ty = geometry.table_half_extents
-    placed_xy: list[np.ndarray] = []
-    placed_r: list[float] = []
+    keep_out = _keep_out_rects(geometry)
+    placed: list[tuple[float, float, float]] = []
     near = np.zeros(n, dtype=bool)
     order = np.argsort(-np.asarray(radii), kind="stable")  # big objects first: fewer rejections
     xy_out = np.zeros((n, 2))
-    for rank, i in enumerate(order):
+    for rank, i in enumerate(order.tolist()):
         want_near = rank < n_near
+        r = float(radii[i])
         for attempt in range(max_tries):
             if want_near:  # widen the corridor if it is crowded rather than fail
                 width = 0.14 if attempt < max_tries // 2 else 0.25
-                xy = start + rng.uniform(0.2, 0.85) * direction + rng.uniform(-width, width) * normal
+                along, across = rng.uniform(0.2, 0.85), rng.uniform(-width, width)
+                x, y = sx + along * dx + across * nx, sy + along * dy + across * ny
             else:
-                xy = np.array([rng.uniform(-tx, tx), rng.uniform(-ty, ty)])
-            if _free(xy, radii[i], placed_xy, placed_r, geometry):
+                x, y = rng.uniform(-tx, tx), rng.uniform(-ty, ty)
+            if _free(x, y, r, placed, geometry, keep_out):
                 break
         else:
             raise PlacementError(
-                f"could not place {n} objects without overlap ({len(placed_xy)} fitted"
+                f"could not place {n} objects without overlap ({len(placed)} fitted"
                 f"{', the near-path corridor is full' if want_near else ''}): reduce n_objects"
                 f" or near_path_fraction, or choose smaller objects")
-        placed_xy.append(xy)
-        placed_r.append(float(radii[i]))
-        xy_out[i] = xy
+        placed.append((x, y, r))
+        xy_out[i] = x, y
         near[i] = want_near
     return Placement(xy=xy_out, yaw=rng.uniform(-np.pi, np.pi, size=n), near_path=near)
