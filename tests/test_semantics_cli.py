@@ -96,9 +96,13 @@ def test_constraint_matrix_prints_both_tables_and_json(capsys, tmp_path):
     assert code == 0, err
     assert "Table III" in out and "Table IV" in out and "no_contact (GT)" in out
     result = json.loads(path.read_text())
-    assert result["trials"] == 20 and result["backend"]["examples_file"] == "class_examples_v2.json"
+    assert result["trials"] == 20 and result["backend"]["examples_file"] == "class_examples_v3.json"
+    assert result["objects"] == "catalog"
     for row in result["table3"].values():
         assert abs(sum(row[c] for c in CONSTRAINT_TYPES) - 100.0) < 0.2
+    code, out, err = run(capsys, "constraint-matrix", "--trials", "5", "--objects", "paper", "--objects-per-scene", "8")
+    assert code == 0 and "(paper set)" in out, err
+    assert sum(1 for line in out.splitlines() if line.rstrip().endswith(" 5")) == 8  # 8 objects, 5 appearances each
 
 
 def test_render_query_writes_annotated_pair_and_sorted_list(capsys, tmp_path):

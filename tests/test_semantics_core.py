@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from safemanip.scene.catalog import CONSTRAINT_TYPES, load_catalog
+from safemanip.scene.catalog import CONSTRAINT_TYPES, SEMANTIC_CLASSES, load_catalog
 from safemanip.selection.base import SceneView
 from safemanip.semantics import (BackendError, ConstraintAnswer, ObjectAnswer, ResponseCache, SchemaError, cache_key,
                                  constraint_schema, default_task, load_prompt, object_selection_schema,
@@ -344,15 +344,31 @@ def test_predicted_segment_uses_recent_path_when_velocity_is_zero():
     assert b[1] > a[1]
 
 
-@pytest.mark.parametrize("version", ["v1", "v2"])
-def test_class_examples_are_disjoint_from_the_catalog(version):
+@pytest.mark.parametrize("version", ["v1", "v2", "v3"])
+def test_class_examples_are_disjoint_from_the_test_names(version):
+    from safemanip.semantics.commands import object_set
     examples = load_class_examples(version)
-    catalog = {n.lower() for n in load_catalog()}
     flat = [n.lower() for names in examples.values() for n in names]
     assert len(flat) == len(set(flat)) and all(len(v) >= 8 for v in examples.values())
-    assert not catalog & set(flat)
-    # nor does any example merely extend a catalog name ("red mug holder") or sit inside one
-    assert not [(e, c) for e in flat for c in catalog if c in e or e in c]
+    for test_set in ("catalog", "heldout"):
+        test_names = {n.lower() for n in object_set(test_set)}
+        assert not test_names & set(flat)
+        # nor does any example merely extend a test name ("red mug holder") or sit inside one
+        assert not [(e, c) for e in flat for c in test_names if c in e or e in c]
+
+
+def test_heldout_names_are_not_catalog_names():
+    from safemanip.semantics.commands import object_set
+    heldout, catalog = set(object_set("heldout")), set(object_set("catalog"))
+    assert len(heldout) == 60 and not [(h, c) for h in heldout for c in catalog if c in h or h in c]
+
+
+def test_v3_additions_avoid_the_words_of_the_names_v2_got_wrong():
+    """v3 was written after the catalog had been seen; its additions must not target v2's six errors."""
+    added = {c: set(load_class_examples("v3")[c]) - set(load_class_examples("v2")[c]) for c in SEMANTIC_CLASSES}
+    banned = {"plant", "pot", "egg", "carton", "cup", "yogurt", "pencil", "case", "wooden", "wood", "spoon"}
+    words = {w for names in added.values() for n in names for w in n.replace("-", " ").split()}
+    assert sum(map(len, added.values())) == 90 and not words & banned
 
 
 def test_decision_rule_is_versioned_data():
@@ -360,6 +376,8 @@ def test_decision_rule_is_versioned_data():
     assert load_decision_rule("v1") == {"rule": "argmax", "margin": 0.0}
     v2 = load_decision_rule("v2")
     assert v2["rule"] == "strictest_within_margin" and 0.0 < v2["margin"] < 0.1
+    v3 = load_decision_rule("v3")
+    assert v3["rule"] == "logistic_strictest_within_margin" and v3["l2"] == 0.1 and v3["iterations"] == 300
     sims = np.array([[0.50, 0.53, 0.10], [0.20, 0.60, 0.58], [0.10, 0.20, 0.90]])
     assert decide_classes(sims, 0.0).tolist() == [1, 1, 2]
     assert decide_classes(sims, 0.035).tolist() == [0, 1, 2]  # the strictest class within the margin

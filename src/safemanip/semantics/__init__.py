@@ -24,10 +24,12 @@ Pieces
     shipped all-MiniLM-L6-v2 embedding model against prototypes built from example names that are not
     in the catalog, and a metric-risk object ranking along the box's extrapolated path weighted by
     fragility. Numpy-only per query after one embedding call per scene. The example names and the
-    decision rule are versioned data: ``data/class_examples_v2.json`` (default; 25 names per class, the
-    strictest class within a cosine margin of 0.035 of the best, margin picked by ``select_margin``'s
-    leave-one-out over the examples) and ``data/class_examples_v1.json`` (8 per class, argmax),
-    selectable with ``examples_file="v1"`` / ``--semantic-examples v1``.
+    decision rule are versioned data: ``data/class_examples_v3.json`` (default; 55 names per class, a
+    logistic regression on the embeddings, the strictest class within 0.19 of the most probable one,
+    margin and rule picked by cross-validation over the examples), ``_v2`` (25 per class, class-mean
+    cosine with a 0.035 margin) and ``_v1`` (8 per class, argmax), selectable with
+    ``examples_file="v1"`` / ``--semantic-examples v1``. ``data/heldout_names_v1.json`` holds 60 labelled
+    names no version was developed on (``constraint-matrix --objects heldout``).
 ``selectors``
     ``DynamicVLMSelector`` (ObjectSelector; queries every ``query_interval`` steps, falls back to
     dynamic-kNN per failed query) and ``VLMConstraintSelector`` (ConstraintSelector; queried at t = 0,

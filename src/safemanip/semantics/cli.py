@@ -49,7 +49,7 @@ def _add_backend_options(p: argparse.ArgumentParser, default: str = "semantic", 
                    help=f"semantic: offline sentence-embedding classifier (default); openai: any OpenAI-compatible "
                         f"chat-completions server{none_help}")
     g.add_argument("--semantic-examples", metavar="VERSION",
-                   help="semantic backend: example set and decision rule, v1 or v2 (default: v2), or a file name "
+                   help="semantic backend: example set and decision rule, v1, v2 or v3 (default: v3), or a file name "
                         "in safemanip/semantics/data")
     g.add_argument("--vlm-base-url", metavar="URL",
                    help="openai backend: server base URL ending in /v1 (default: the OpenAI API, needs OPENAI_API_KEY)")
@@ -134,7 +134,7 @@ def _cmd_matrix(args) -> int:
         backend = _backend_from_args(args)
         text, result = constraint_matrix(backend, trials=args.trials, seed=args.seed,
                                          objects_per_scene=args.objects_per_scene, name_variants=args.name_variants,
-                                         task=args.task)
+                                         task=args.task, objects=args.objects)
         if result["failed_trials"] == args.trials:
             raise CommandError(f"every one of the {args.trials} trials failed (see the warnings above); "
                                "no table to print")
@@ -185,7 +185,10 @@ def register(subparsers) -> None:
                                help="the paper's Table III (GT vs predicted constraint) and Table IV (per object)")
     cm.add_argument("--trials", type=int, default=200, help="random scenes to ask about (default 200, as the paper)")
     cm.add_argument("--seed", type=int, default=0)
-    cm.add_argument("--objects-per-scene", type=int, default=6, help="catalog objects per trial (default 6)")
+    cm.add_argument("--objects-per-scene", type=int, default=6, help="objects per trial (default 6)")
+    cm.add_argument("--objects", default="catalog", choices=["catalog", "paper", "heldout"],
+                    help="test names: every catalog object (default), the paper's eight objects (what its Tables III "
+                         "and IV are over), or the shipped held-out name list")
     cm.add_argument("--name-variants", action="store_true",
                     help="reword each appearance mildly ('the red mug', 'Red Mug', 'small red mug', ...)")
     cm.add_argument("--task", help="task description for the prompt (default: the slide-out task)")

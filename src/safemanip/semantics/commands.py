@@ -6,9 +6,11 @@ Each takes ordinary arguments and returns text (and, where useful, a dict for JS
 from __future__ import annotations
 
 import io
+import json
 import logging
 import statistics
 import time
+from importlib import resources
 from typing import Sequence
 
 import numpy as np
@@ -33,7 +35,7 @@ def make_backend(backend_name: str, *, model: str | None = None, base_url: str |
                  attempts: int = 3, semantic_examples: str | None = None) -> Backend:
     """Build a backend by name: ``semantic`` (offline, default) or ``openai`` (any compatible server).
 
-    ``semantic_examples`` picks the semantic backend's example set and decision rule ("v1", "v2" or a
+    ``semantic_examples`` picks the semantic backend's example set and decision rule ("v1", "v2", "v3" or a
     file name in ``semantics/data``; default: the newest).
     """
     if backend_name == "semantic":
@@ -62,9 +64,37 @@ def classify_constraints(backend_name: str | Backend, names: Sequence[str], *, t
     return "\n".join(f"{n}\t{c}" for n, c in zip(names, answer.constraints))
 
 
+PAPER_OBJECTS = ("toy squirrel", "toy sheep", "toy android", "red mug", "blue mug", "porcelain mug", "supplement bottle",
+                 "plant pot")
+"""The eight objects of the paper's experiments (its Tables III and IV are over these)."""
+OBJECT_SETS = ("catalog", "paper", "heldout")
+
+
+def object_set(which: str) -> dict[str, str]:
+    """Name -> ground-truth constraint for a named set of test objects.
+
+    ``catalog``: all catalog objects; ``paper``: the paper's eight; ``heldout``: the held-out name list
+    shipped in ``semantics/data/heldout_names_v1.json`` (not catalog objects; labels from that file).
+    """
+    if which == "catalog":
+        return {n: o.constraint for n, o in sorted(load_catalog().items())}
+    if which == "paper":
+        catalog = load_catalog()
+        return {n: catalog[n].constraint for n in PAPER_OBJECTS}
+    if which == "heldout":
+        raw = json.loads(resources.files("safemanip.semantics").joinpath("data", "heldout_names_v1.json")
+                         .read_text(encoding="utf-8"))
+        return {n: CONSTRAINT_OF_CLASS[c] for c in SEMANTIC_CLASSES for n in sorted(raw["classes"][c])}
+    raise ValueError(f"unknown object set {which!r}; choose one of {OBJECT_SETS}")
+
+
 def constraint_matrix(backend_name: str | Backend, trials: int = 200, seed: int = 0, *, objects_per_scene: int = 6,
-                      name_variants: bool = False, task: str | None = None, **backend_kwargs) -> tuple[str, dict]:
-    """The paper's Table III (ground truth vs predicted constraint) and Table IV (per object) on the catalog.
+                      name_variants: bool = False, task: str | None = None, objects: str = "catalog",
+                      **backend_kwargs) -> tuple[str, dict]:
+    """The paper's Table III (ground truth vs predicted constraint) and Table IV (per object).
+
+    ``objects`` picks the test names (``object_set``): the catalog (default), the paper's eight objects
+    (the set the paper's own tables are over) or the shipped held-out list.
 
     Each trial samples a scene of ``objects_per_scene`` distinct catalog objects and asks the backend
     for all of their constraints at once (as ConstraintVLM is asked at t = 0). Percentages are over
@@ -75,8 +105,8 @@ def constraint_matrix(backend_name: str | Backend, trials: int = 200, seed: int 
     """
     if trials < 1:
         raise ValueError(f"trials must be >= 1, got {trials}")
-    catalog = load_catalog()
-    all_names = sorted(catalog)
+    truth = object_set(objects)
+    all_names = list(truth)
     if not 1 <= objects_per_scene <= len(all_names):
         raise ValueError(f"objects_per_scene must be between 1 and {len(all_names)}, got {objects_per_scene}")
     backend = _backend(backend_name, **backend_kwargs)
@@ -98,18 +128,18 @@ def constraint_matrix(backend_name: str | Backend, trials: int = 200, seed: int 
 
     gt_rows = {CONSTRAINT_OF_CLASS[c]: np.zeros(len(CONSTRAINT_TYPES), dtype=int) for c in SEMANTIC_CLASSES}
     for name, counts in per_object.items():
-        gt_rows[catalog[name].constraint] += counts
+        gt_rows[truth[name]] += counts
 
     def pct(counts: np.ndarray) -> dict[str, float] | None:
         total = int(counts.sum())
         return None if total == 0 else {c: round(100.0 * counts[i] / total, 1) for i, c in enumerate(CONSTRAINT_TYPES)}
 
     table3 = {gt: pct(counts) for gt, counts in gt_rows.items()}
-    table4 = {n: {"ground_truth": catalog[n].constraint, "n": int(c.sum()), "percent": pct(c)}
+    table4 = {n: {"ground_truth": truth[n], "n": int(c.sum()), "percent": pct(c)}
               for n, c in per_object.items()}
     appearances = sum(int(c.sum()) for c in per_object.values())
-    correct = sum(int(c[ci[catalog[n].constraint]]) for n, c in per_object.items())
-    majority_ok = [n for n, c in per_object.items() if c.sum() and CONSTRAINT_TYPES[int(c.argmax())] == catalog[n].constraint]
+    correct = sum(int(c[ci[truth[n]]]) for n, c in per_object.items())
+    majority_ok = [n for n, c in per_object.items() if c.sum() and CONSTRAINT_TYPES[int(c.argmax())] == truth[n]]
     sampled = [n for n, c in per_object.items() if c.sum()]
 
     notes = []
@@ -122,7 +152,7 @@ def constraint_matrix(backend_name: str | Backend, trials: int = 200, seed: int 
         notes.append(f"{failed} of {trials} trials failed and were skipped.")
     result = {
         "backend": backend.describe(), "trials": trials, "failed_trials": failed, "seed": seed,
-        "objects_per_scene": objects_per_scene, "name_variants": name_variants,
+        "objects_per_scene": objects_per_scene, "name_variants": name_variants, "objects": objects,
         "table3": table3, "table4": table4,
         "appearance_accuracy": round(100.0 * correct / appearances, 1) if appearances else None,
         "object_accuracy": round(100.0 * len(majority_ok) / len(sampled), 1) if sampled else None,
@@ -144,7 +174,7 @@ def _format_tables(result: dict) -> str:
     for gt, row in result["table3"].items():
         cells = "".join(f"{row[c]:>14.1f}" if row else f"{'n/a':>14s}" for c in CONSTRAINT_TYPES)
         lines.append(f"{gt + ' (GT)':22s}{cells}")
-    lines += ["", "Table IV: predicted constraint per catalog object, % of its appearances", head + f"{'GT':>14s}{'n':>6s}"]
+    lines += ["", f"Table IV: predicted constraint per object ({result['objects']} set), % of its appearances", head + f"{'GT':>14s}{'n':>6s}"]
     for name, row in result["table4"].items():
         pcts = row["percent"]
         cells = "".join(f"{pcts[c]:>14.1f}" if pcts else f"{'n/a':>14s}" for c in CONSTRAINT_TYPES)

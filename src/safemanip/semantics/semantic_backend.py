@@ -1,14 +1,15 @@
 """Offline semantic backend: zero-shot name classification with a small sentence-embedding model,
 plus a metric-risk ranking of objects along the manipulated box's predicted path.
 
-Classification: a name's embedding is compared (cosine) with one prototype per semantic class, the
-normalised mean embedding of labelled example names kept in ``data/class_examples_v<N>.json``. None of
-those names is a catalog name, so the catalog is a held-out test set. Probabilities are a softmax of
-the similarities. The class (hence the constraint) is decided by the file's ``decision`` rule: v2 picks
-the most restrictive class whose similarity is within a margin of the best one (a safety-conservative
-lean: calling a fragile object soft is worse than the reverse), with the margin chosen by
-leave-one-out over the examples (``select_margin``), never on the catalog. v1 files have no rule and
-mean plain argmax, so ``SemanticBackend(examples_file="class_examples_v1.json")`` reproduces v1.
+Classification: a name's L2-normalised embedding is scored against the three classes by a model fitted
+on labelled example names kept in ``data/class_examples_v<N>.json``. None of those names is a catalog
+name or on the held-out list (``data/heldout_names_v1.json``), so both are test sets. The file's
+``decision`` block fixes the model and the rule: v3 (default) fits a multinomial logistic regression and
+picks the most restrictive class whose probability is within a margin of the best (a safety-conservative
+lean: calling a fragile object soft is worse than the reverse); v2 compares cosine similarity with one
+prototype per class (the normalised mean example embedding) under the same rule with a cosine margin;
+v1 is plain argmax over v1's prototypes. Rule and margin are chosen on the examples only
+(``select_margin``: cross-validation for v3, leave-one-out for v2), never on a test set.
 
 Object ranking (a stand-in for the VLM's "proximity + safety" criteria): extrapolate the box's
 recent motion over a short horizon, measure each object's clearance to that swept segment, turn
@@ -35,10 +36,12 @@ from safemanip.semantics.base import (BackendError, ConstraintAnswer, Constraint
 Embedder = Callable[[list[str]], np.ndarray]
 """Maps names to an (n, d) array of embeddings (any scale; rows are L2-normalised by the caller)."""
 
-DEFAULT_EXAMPLES = "class_examples_v2.json"
-EXAMPLE_FILES = {"v1": "class_examples_v1.json", "v2": "class_examples_v2.json"}
-"""Shipped example-set versions (``--semantic-examples v1`` reproduces the first classifier)."""
-DECISION_RULES = ("argmax", "strictest_within_margin")
+DEFAULT_EXAMPLES = "class_examples_v3.json"
+EXAMPLE_FILES = {"v1": "class_examples_v1.json", "v2": "class_examples_v2.json", "v3": "class_examples_v3.json"}
+"""Shipped example-set versions (``--semantic-examples v1`` / ``v2`` reproduce the earlier classifiers)."""
+DECISION_RULES = ("argmax", "strictest_within_margin", "logistic_strictest_within_margin")
+LOGISTIC_DEFAULTS = {"l2": 0.1, "scale": 10.0, "iterations": 300, "learning_rate": 0.5}
+"""Fit settings of the ``logistic_*`` rule (a file's decision block may override them)."""
 # How bad a contact is, per class: fragile objects break, soft ones tolerate a nudge, durable ones
 # can take a hit. Only the ratios matter for the ranking.
 DEFAULT_CLASS_WEIGHTS = {"fragile": 1.0, "soft": 0.5, "durable": 0.1}
@@ -105,6 +108,9 @@ def load_decision_rule(filename: str = DEFAULT_EXAMPLES) -> dict:
     if not 0.0 <= margin < 1.0:
         raise ValueError(f"{filename}: decision margin must be in [0, 1), got {margin}")
     decision["margin"] = margin if decision["rule"] != "argmax" else 0.0
+    if decision["rule"].startswith("logistic"):
+        for key, default in LOGISTIC_DEFAULTS.items():
+            decision[key] = float(decision.get(key, default))
     return decision
 
 
@@ -118,17 +124,65 @@ def decide_classes(similarities: np.ndarray, margin: float) -> np.ndarray:
     return np.argmax(close, axis=1)
 
 
-def leave_one_out_similarities(examples: dict[str, list[str]], embedder: "Embedder | None" = None
-                               ) -> tuple[np.ndarray, np.ndarray]:
-    """(similarities (n, 3), true class index (n,)) of every example name against prototypes built without it."""
+def fit_logistic(embeddings: np.ndarray, labels: np.ndarray, *, l2: float, scale: float, iterations: int,
+                 learning_rate: float) -> tuple[np.ndarray, np.ndarray]:
+    """Multinomial logistic regression on L2-normalised embeddings by full-batch gradient descent.
+
+    Deterministic (zero start, fixed step count), so a file's decision block fixes the model. ``scale``
+    multiplies the cosine-range inputs so that the weights need not grow large.
+    """
+    x = np.asarray(embeddings, dtype=np.float64)
+    onehot = np.eye(len(SEMANTIC_CLASSES))[np.asarray(labels)]
+    weights = np.zeros((x.shape[1], len(SEMANTIC_CLASSES)))
+    bias = np.zeros(len(SEMANTIC_CLASSES))
+    for _ in range(int(iterations)):
+        grad = (logistic_probabilities(x, weights, bias, scale) - onehot) / len(x)
+        weights -= learning_rate * (scale * x.T @ grad + l2 * weights)
+        bias -= learning_rate * grad.sum(axis=0)
+    return weights, bias
+
+
+def logistic_probabilities(embeddings: np.ndarray, weights: np.ndarray, bias: np.ndarray, scale: float) -> np.ndarray:
+    z = scale * (np.asarray(embeddings, dtype=np.float64) @ weights) + bias
+    z -= z.max(axis=1, keepdims=True)
+    e = np.exp(z)
+    return e / e.sum(axis=1, keepdims=True)
+
+
+def _embed_examples(examples: dict[str, list[str]], embedder: "Embedder | None") -> tuple[np.ndarray, np.ndarray]:
     embed = embedder if embedder is not None else minilm_embedder()
     names = [n for c in SEMANTIC_CLASSES for n in examples[c]]
     labels = np.array([i for i, c in enumerate(SEMANTIC_CLASSES) for _ in examples[c]])
     emb = np.asarray(embed(names), dtype=np.float64)
-    emb /= np.maximum(np.linalg.norm(emb, axis=1, keepdims=True), 1e-12)
+    return emb / np.maximum(np.linalg.norm(emb, axis=1, keepdims=True), 1e-12), labels
+
+
+def cross_validated_logistic_scores(examples: dict[str, list[str]], embedder: "Embedder | None" = None, *,
+                                    folds: int = 5, repeats: int = 4, **fit) -> tuple[np.ndarray, np.ndarray]:
+    """(probabilities (repeats, n, 3), labels (n,)): each example scored by a model fitted without its fold.
+
+    Folds are random permutations seeded 0..repeats-1, so the result is reproducible.
+    """
+    settings = {**LOGISTIC_DEFAULTS, **fit}
+    emb, labels = _embed_examples(examples, embedder)
+    out = np.zeros((repeats, len(labels), len(SEMANTIC_CLASSES)))
+    for r in range(repeats):
+        fold = np.empty(len(labels), dtype=int)
+        fold[np.random.default_rng(r).permutation(len(labels))] = np.arange(len(labels)) % folds
+        for k in range(folds):
+            test = fold == k
+            w, b = fit_logistic(emb[~test], labels[~test], **settings)
+            out[r, test] = logistic_probabilities(emb[test], w, b, settings["scale"])
+    return out, labels
+
+
+def leave_one_out_similarities(examples: dict[str, list[str]], embedder: "Embedder | None" = None
+                               ) -> tuple[np.ndarray, np.ndarray]:
+    """(similarities (n, 3), true class index (n,)) of every example name against prototypes built without it."""
+    emb, labels = _embed_examples(examples, embedder)
     sums = np.stack([emb[labels == c].sum(axis=0) for c in range(len(SEMANTIC_CLASSES))])
     counts = np.bincount(labels, minlength=len(SEMANTIC_CLASSES)).astype(float)
-    sims = np.zeros((len(names), len(SEMANTIC_CLASSES)))
+    sims = np.zeros((len(labels), len(SEMANTIC_CLASSES)))
     for i, (e, c) in enumerate(zip(emb, labels)):
         protos = sums.copy()
         protos[c] -= e
@@ -140,27 +194,39 @@ def leave_one_out_similarities(examples: dict[str, list[str]], embedder: "Embedd
 
 
 def select_margin(examples: dict[str, list[str]] | None = None, embedder: "Embedder | None" = None, *,
-                  unsafe_weight: float = 2.0, grid: Sequence[float] | None = None) -> dict:
-    """Pick the decision margin by leave-one-out over the example names (never the catalog).
+                  unsafe_weight: float = 2.0, grid: Sequence[float] | None = None, rule: str = "strictest_within_margin",
+                  **fit) -> dict:
+    """Pick the decision margin on the example names only (never the catalog or the held-out names).
 
-    Cost of one example: ``unsafe_weight`` per class level when the predicted constraint is looser than
-    the truth (fragile -> soft is one level, fragile -> durable two), 1 per level when it is stricter.
-    Returns the smallest margin of least total cost and the per-margin table.
+    ``strictest_within_margin`` (cosine to class prototypes) is scored by leave-one-out;
+    ``logistic_strictest_within_margin`` (class probabilities of a logistic regression) by 5-fold
+    cross-validation repeated 4 times. Cost of one example: ``unsafe_weight`` per class level when the
+    predicted constraint is looser than the truth (fragile -> soft is one level, fragile -> durable two),
+    1 per level when it is stricter. Returns the smallest margin of least mean cost and the per-margin table.
     """
     examples = examples if examples is not None else load_class_examples()
-    grid = np.round(np.arange(0.0, 0.1001, 0.005), 4) if grid is None else np.asarray(grid, float)
-    sims, labels = leave_one_out_similarities(examples, embedder)
+    if rule == "logistic_strictest_within_margin":
+        scores, labels = cross_validated_logistic_scores(examples, embedder, **fit)
+        grid = np.round(np.arange(0.0, 0.5001, 0.01), 4) if grid is None else np.asarray(grid, float)
+    elif rule in ("strictest_within_margin", "argmax"):
+        sims, labels = leave_one_out_similarities(examples, embedder)
+        scores = sims[None]
+        grid = np.round(np.arange(0.0, 0.1001, 0.005), 4) if grid is None else np.asarray(grid, float)
+    else:
+        raise ValueError(f"rule must be one of {DECISION_RULES}, got {rule!r}")
     rows = []
     for m in grid:
-        pred = decide_classes(sims, float(m))
-        diff = pred - labels  # > 0: looser than the truth (unsafe), < 0: stricter
-        cost = float(np.sum(np.where(diff > 0, unsafe_weight * diff, -diff)))
-        recall = {c: round(float(np.mean(pred[labels == i] == i)), 3) for i, c in enumerate(SEMANTIC_CLASSES)}
-        rows.append({"margin": float(m), "cost": cost, "accuracy": round(float(np.mean(pred == labels)), 3),
-                     "recall": recall, "looser_than_truth": int(np.sum(diff > 0))})
+        preds = [decide_classes(run, float(m)) for run in scores]
+        diffs = [pred - labels for pred in preds]  # > 0: looser than the truth (unsafe), < 0: stricter
+        cost = float(np.mean([np.sum(np.where(d > 0, unsafe_weight * d, -d)) for d in diffs]))
+        recall = {c: round(float(np.mean([np.mean(p[labels == i] == i) for p in preds])), 3)
+                  for i, c in enumerate(SEMANTIC_CLASSES)}
+        rows.append({"margin": float(m), "cost": round(cost, 3),
+                     "accuracy": round(float(np.mean([np.mean(p == labels) for p in preds])), 3),
+                     "recall": recall, "looser_than_truth": float(np.mean([np.sum(d > 0) for d in diffs]))})
     best = min(rows, key=lambda r: (r["cost"], r["margin"]))
     return {"margin": best["margin"], "best": best, "table": rows, "unsafe_weight": unsafe_weight,
-            "n_examples": int(len(labels))}
+            "n_examples": int(len(labels)), "rule": rule}
 
 
 class SemanticBackend:
@@ -190,12 +256,13 @@ class SemanticBackend:
         self._embed = embedder if embedder is not None else minilm_embedder()
         if examples is not None:
             self.examples, self.examples_file = examples, None
-            file_margin = 0.0
+            self.decision = {"rule": "argmax", "margin": 0.0}
         else:
             self.examples_file = EXAMPLE_FILES.get(examples_file, examples_file)
             self.examples = load_class_examples(self.examples_file)
-            file_margin = load_decision_rule(self.examples_file)["margin"]
-        self.margin = float(file_margin if margin is None else margin)
+            self.decision = load_decision_rule(self.examples_file)
+        self.logistic = self.decision["rule"].startswith("logistic")
+        self.margin = float(self.decision["margin"] if margin is None else margin)
         if not 0.0 <= self.margin < 1.0:
             raise ValueError(f"margin must be in [0, 1), got {self.margin}")
         self.temperature = float(temperature)
@@ -211,14 +278,15 @@ class SemanticBackend:
         self.task_direction = None if task_direction is None else _unit(np.asarray(task_direction, float)[:2])
         self.assumed_speed_mps = float(assumed_speed_mps)
         self.min_speed_mps = float(min_speed_mps)
-        self._prototypes: np.ndarray | None = None
+        self._prototypes = None  # (3, d) class prototypes, or (weights, bias) of the logistic rule
         self._probs: dict[str, np.ndarray] = {}
         self._sims: dict[str, np.ndarray] = {}
         self.embed_calls = 0
 
     def describe(self) -> dict:
         return {"backend": "semantic", "model": "all-MiniLM-L6-v2", "examples_file": self.examples_file,
-                "examples": {c: len(v) for c, v in self.examples.items()}, "margin": self.margin,
+                "examples": {c: len(v) for c, v in self.examples.items()}, "rule": self.decision["rule"],
+                "margin": self.margin,
                 "temperature": self.temperature, "horizon_s": self.horizon_s,
                 "box_half_width_m": self.box_half_width_m, "risk_length_m": self.risk_length_m,
                 "class_weights": self.class_weights}
@@ -237,29 +305,35 @@ class SemanticBackend:
             raise BackendError(f"embedder returned shape {emb.shape} for {len(names)} names")
         return emb / np.maximum(np.linalg.norm(emb, axis=1, keepdims=True), 1e-12)
 
-    def _ensure_prototypes(self) -> np.ndarray:
+    def _ensure_prototypes(self):
+        """The fitted classifier: class prototypes (cosine rules) or logistic weights, built on first use."""
         if self._prototypes is None:
             flat = [n for c in SEMANTIC_CLASSES for n in self.examples[c]]
+            labels = np.array([i for i, c in enumerate(SEMANTIC_CLASSES) for _ in self.examples[c]])
             emb = self._embed_normalised(flat)
-            protos, start = [], 0
-            for c in SEMANTIC_CLASSES:
-                n = len(self.examples[c])
-                mean = emb[start: start + n].mean(axis=0)
-                protos.append(mean / np.linalg.norm(mean))
-                start += n
-            self._prototypes = np.stack(protos)
+            if self.logistic:
+                fit = {k: self.decision[k] for k in LOGISTIC_DEFAULTS}
+                self._prototypes = fit_logistic(emb, labels, **fit)
+            else:
+                protos = np.stack([emb[labels == c].mean(axis=0) for c in range(len(SEMANTIC_CLASSES))])
+                self._prototypes = protos / np.linalg.norm(protos, axis=1, keepdims=True)
         return self._prototypes
 
     def prepare(self, names: Sequence[str]) -> None:
         """Embed every not-yet-seen name of a scene in one batched model call."""
-        protos = self._ensure_prototypes()
+        model = self._ensure_prototypes()
         new = sorted({n for n in names if n not in self._probs})
         if not new:
             return
-        sims = self._embed_normalised(new) @ protos.T
-        for name, row in zip(new, sims):
-            self._sims[name] = row
-            self._probs[name] = _softmax(row / self.temperature)
+        emb = self._embed_normalised(new)
+        if self.logistic:
+            scores = probs = logistic_probabilities(emb, *model, self.decision["scale"])
+        else:
+            scores = emb @ model.T
+            probs = [_softmax(row / self.temperature) for row in scores]
+        for name, score, prob in zip(new, scores, probs):
+            self._sims[name] = score
+            self._probs[name] = prob
 
     def class_probabilities(self, names: Sequence[str]) -> np.ndarray:
         """(N, 3) probabilities over (fragile, soft, durable) for each name."""
@@ -267,7 +341,8 @@ class SemanticBackend:
         return np.stack([self._probs[n] for n in names]) if len(names) else np.zeros((0, 3))
 
     def class_similarities(self, names: Sequence[str]) -> np.ndarray:
-        """(N, 3) cosine similarities to the (fragile, soft, durable) prototypes."""
+        """(N, 3) scores the decision rule compares: cosine similarities to the (fragile, soft, durable)
+        prototypes, or the logistic rule's class probabilities."""
         self.prepare(names)
         return np.stack([self._sims[n] for n in names]) if len(names) else np.zeros((0, 3))
 
