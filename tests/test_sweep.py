@@ -115,3 +115,21 @@ def test_render_only_uses_stored_results(tmp_path, name):
 def test_render_with_no_results_says_how_to_get_them(tmp_path):
     fig, table = render(load_config("fig6"), [], tmp_path)
     assert fig is None and "safemanip sweep fig6" in Path(table).read_text()
+
+
+def test_cells_that_query_the_semantic_backend_go_stale_with_its_version(tmp_path):
+    from safemanip.evaluation.sweep import _done
+    from safemanip.semantics.semantic_backend import DEFAULT_EXAMPLES
+
+    cells = {(c.selector, c.constraints): c for c in cells_of(load_config("table2"), episodes=10) if c.k == 2}
+    vlm_cell, plain_cell = cells[("dynamic-vlm", "vlm")], cells[("dynamic-knn", "conservative")]
+    assert vlm_cell.vlm == f"semantic:{DEFAULT_EXAMPLES}" and plain_cell.vlm is None
+    path = tmp_path / "cell.json"
+    old = {**asdict(vlm_cell), "vlm": "semantic:class_examples_v2.json"}
+    path.write_text(json.dumps({"cell": old, "summary": {}}))
+    assert not _done(path, vlm_cell)  # a result of an older classifier is redone
+    legacy = {k: v for k, v in asdict(plain_cell).items() if k != "vlm"}  # stored before the field existed
+    path.write_text(json.dumps({"cell": legacy, "summary": {}}))
+    assert _done(path, plain_cell)
+    path.write_text(json.dumps({"cell": {k: v for k, v in asdict(vlm_cell).items() if k != "vlm"}, "summary": {}}))
+    assert not _done(path, vlm_cell)

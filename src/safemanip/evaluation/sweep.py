@@ -60,6 +60,9 @@ class Cell:
     judge: str
     episodes: int
     seed: int
+    vlm: str | None = None
+    """Identity of the semantic backend for cells that query it (its example set and rule version), so a
+    new classifier version makes those cells stale; None for cells that do not use it."""
 
     @property
     def id(self) -> str:
@@ -151,7 +154,9 @@ def cells_of(cfg: dict, episodes: int | None = None) -> list[Cell]:
     objects (so one config can pair each N with its own semantics). Duplicates (k == N cells that all
     map to ``k_equals_n_selector``) are merged.
     """
+    from safemanip.evaluation.harness import USES_VLM
     from safemanip.scene.config import parse_semantics
+    from safemanip.semantics.semantic_backend import DEFAULT_EXAMPLES
 
     episodes = int(episodes or cfg["episodes"])
     pairs = cfg.get("pairs") or [(s, c) for s in cfg["selectors"] for c in cfg.get("constraints", ["conservative"])]
@@ -170,8 +175,10 @@ def cells_of(cfg: dict, episodes: int | None = None) -> list[Cell]:
                         continue
                     if k == n and cfg.get("k_equals_n_selector"):
                         selector = cfg["k_equals_n_selector"]
+                    uses_vlm = selector in USES_VLM or constraints in USES_VLM
                     cell = Cell(policy, m["algorithm"], k, m["constraints"], int(n), sem, selector, constraints,
-                                cfg["judge"], episodes, int(cfg.get("seed", 0)))
+                                cfg["judge"], episodes, int(cfg.get("seed", 0)),
+                                f"semantic:{DEFAULT_EXAMPLES}" if uses_vlm else None)
                     out.setdefault(cell.id, cell)
     return list(out.values())
 
@@ -184,7 +191,7 @@ def _done(path: Path, cell: Cell) -> bool:
         stored = json.loads(path.read_text())["cell"]
     except (json.JSONDecodeError, KeyError):
         return False  # a damaged result file is simply redone
-    return stored == asdict(cell)
+    return {"vlm": None, **stored} == asdict(cell)  # results from before the 'vlm' field had no VLM version
 
 
 def run_sweep(name: str, *, episodes: int | None = None, out: str | None = None, workers: int = 2,
