@@ -17,8 +17,7 @@ import mujoco
 import numpy as np
 
 from safemanip.env import margins as M
-from safemanip.env.observation import (ROBOT_DIM, SLOT_DIM, SceneState, build_observation, encode_constraints,
-                                       observation_dim, observation_space)
+from safemanip.env.observation import SLOT_DIM, SceneState, encode_constraints, observation_space
 from safemanip.scene.builder import CONTROL_DT, TIMESTEP, SceneIndex, build_model
 from safemanip.scene.catalog import CONSTRAINT_TYPES, load_catalog, names_of_class
 from safemanip.scene.config import GEOMETRY, SceneConfig
@@ -88,7 +87,7 @@ class SlideOutEnv(gym.Env):
             data = mujoco.MjData(model)
             index, binding = SceneIndex.from_model(model, len(names)), self.hand.bind(model)
             _evict_oldest(self._sims)
-            self._sims[names] = (model, data, index, binding, _StateGather.build(index, binding))
+            self._sims[names] = (model, data, index, binding, _StateGather.build(index, binding, data))
         return self._sims[names]
 
     def _footprint_radii(self, names: tuple[str, ...]) -> np.ndarray:
@@ -107,7 +106,7 @@ class SlideOutEnv(gym.Env):
             checked = [i for i, c in enumerate(constraints) if c != "any_contact"]
             margin_names = {i: f"{'g_soft' if soft[i] else 'g_hard'}:{i}:{names[i]}" for i in checked}
             _evict_oldest(self._tables)
-            self._tables[key] = (onehot, self.gather.observation_template(onehot), np.array(soft, dtype=bool), soft,
+            self._tables[key] = (onehot, onehot.ravel().astype(np.float64), np.array(soft, dtype=bool), soft,
                                  checked, margin_names)
         return self._tables[key]
 
@@ -155,34 +154,32 @@ class SlideOutEnv(gym.Env):
             d.qpos[adr + 3:adr + 7] = (np.cos(placement.yaw[i] / 2), 0, 0, np.sin(placement.yaw[i] / 2))
         mujoco.mj_forward(m, d)
         self._top_start = d.xpos[idx.top_box_body, :2].tolist()
-        (self._constraint_onehot, self._obs_template, self._object_is_soft, self._soft_flags, self._checked_list,
+        (self._constraint_onehot, self._onehot_flat, self._object_is_soft, self._soft_flags, self._checked_list,
          self._margin_names) = self._constraint_tables(names, self.constraints)
         self._t = 0
-        state = self._last_good_state = self.scene_state()
-        terms = self._margins(state)
-        return self._observe(state), self._info(terms, "running", None)
+        self._read_state()
+        terms = self._margins()
+        return self._observe(), self._info(terms, "running", None)
 
     # ------------------------------------------------------------------ dynamics
     def step(self, action):
-        a = np.asarray(action, dtype=np.float64).reshape(3)
+        velocity = np.minimum(np.asarray(action, dtype=np.float64).reshape(3), 1.0)
+        # in place, and minimum/maximum rather than np.clip: the same result at a third of the call overhead
+        np.maximum(velocity, -1.0, out=velocity)
+        velocity *= self._speed_scale
         m, d = self.model, self.data
-        # minimum/maximum rather than np.clip: same result, a third of the call overhead
-        self.hand.command_velocity(d, self.binding, np.maximum(np.minimum(a, 1.0), -1.0) * self._speed_scale)
+        self.hand.command_velocity(d, self.binding, velocity)
         time_before = d.time
         mujoco.mj_step(m, d, nstep=self.n_substeps)
         self._t += 1
         # On a bad qpos/qvel/qacc MuJoCo resets the whole MjData (time back to 0) and carries on: time that
         # did not advance by the full control step is the cheap trace of it; NaNs that slipped through into
         # the state the env reads are caught by the finiteness check
-        unstable = d.time < time_before + 0.5 * CONTROL_DT
-        if not unstable:
-            state = self.scene_state()
-            unstable = not math.isfinite(self._state_sum)
-        if unstable:
-            state = self._last_good_state
-            self._last_state = state
-            return self._observe(state), 0.0, True, False, self._info(self._last_terms, "unstable", None)
-        terms = self._margins(state)
+        if d.time < time_before + 0.5 * CONTROL_DT or not self._read_state():
+            self._flat, self._values = self._last_good
+            self._state = None
+            return self._observe(), 0.0, True, False, self._info(self._last_terms, "unstable", None)
+        terms = self._margins()
         l, g = terms["l"], terms["g"]
         event, culprit = "running", None
         terminated = truncated = False
@@ -194,24 +191,38 @@ class SlideOutEnv(gym.Env):
         elif self._t >= self.max_episode_steps:
             event, truncated = "timeout", True
         # reward: the paper's r = min(l, g); the reach-avoid learner reads l and g from info instead
-        return self._observe(state), float(min(l, g)), terminated, truncated, self._info(terms, event, culprit)
+        return self._observe(), float(min(l, g)), terminated, truncated, self._info(terms, event, culprit)
+
+    def _read_state(self) -> bool:
+        """Read the state from MjData in two gathers into one flat array (layout: ``_StateGather``).
+
+        Returns whether it is finite; the last finite read is kept for an unstable step's observation.
+        The ``SceneState`` view of it is built only when someone asks (``scene_state``).
+        """
+        g = self.gather
+        flat = np.concatenate((g.site_xpos[g.ee_site], g.qvel[g.qvel_index], g.xpos[g.body_rows].ravel(),
+                               self._onehot_flat))
+        values = flat.tolist()
+        self._flat, self._values, self._state = flat, values, None
+        if math.isfinite(sum(values)):
+            self._last_good = (flat, values)
+            return True
+        return False
 
     def scene_state(self) -> SceneState:
-        """The paper's full state, read from MjData with two gathers (arrays are fresh, safe to keep)."""
-        d, gather = self.data, self.gather
-        pos = d.xpos[gather.body_rows]  # (2 + N, 3): bottom box, top box, objects
-        vel = d.qvel[gather.qvel_index]  # (6 + 3N,): hand (= held box), top box, objects' linear velocities
-        flat = np.concatenate((d.site_xpos[gather.ee_site], vel, pos.ravel()))
-        ee_vel = flat[3:6]
-        state = SceneState(ee_pos=flat[0:3], ee_vel=ee_vel, bottom_pos=flat[gather.bottom_pos], bottom_vel=ee_vel,
-                           top_pos=flat[gather.top_pos], top_vel=flat[6:9], obj_pos=flat[gather.obj_pos].reshape(-1, 3),
-                           obj_vel=flat[gather.obj_vel].reshape(-1, 3))
-        self._last_state, self._flat_state = state, flat
-        self._state_values = values = flat.tolist()
-        self._state_sum = sum(values)
-        if math.isfinite(self._state_sum):
-            self._last_good_state = state
-        return state
+        """The paper's full state, read now (its arrays are fresh: safe to keep across steps)."""
+        self._read_state()
+        return self._current_state()
+
+    def _current_state(self) -> SceneState:
+        if self._state is None:
+            flat, g = self._flat, self.gather
+            ee_vel = flat[3:6]
+            self._state = SceneState(
+                ee_pos=flat[0:3], ee_vel=ee_vel, bottom_pos=flat[g.bottom_pos], bottom_vel=ee_vel,  # rigidly held
+                top_pos=flat[g.top_pos], top_vel=flat[6:9], obj_pos=flat[g.obj_pos].reshape(-1, 3),
+                obj_vel=flat[g.obj_vel].reshape(-1, 3))
+        return self._state
 
     # ------------------------------------------------------------------ margins
     def object_distances(self, object_ids=None) -> np.ndarray:
@@ -221,15 +232,15 @@ class SlideOutEnv(gym.Env):
         queried: their distance is the cap either way.
         """
         ids = range(len(self.names)) if object_ids is None else [int(i) for i in np.atleast_1d(object_ids)]
-        self.scene_state()
+        self._read_state()
         out = [DISTANCE_CAP] * len(self.names)
         for i, dist in zip(ids, self._distances(ids)):
             out[i] = dist
         return np.array(out)
 
     def _distances(self, ids) -> list[float]:
-        """Capped geom distances of objects ``ids``, from the positions the last ``scene_state`` read."""
-        m, d, gather, v = self.model, self.data, self.gather, self._state_values
+        """Capped geom distances of objects ``ids``, from the positions of the last state read."""
+        m, d, gather, v = self.model, self.data, self.gather, self._values
         bx, by, bz = v[gather.bottom_pos.start:gather.bottom_pos.start + 3]
         base = gather.obj_pos.start
         out = []
@@ -245,12 +256,11 @@ class SlideOutEnv(gym.Env):
             out.append(best)
         return out
 
-    def _margins(self, state: SceneState) -> dict[str, Any]:
-        if state is not self._last_state:  # a state from an earlier step: re-read its values
-            self._state_values = np.concatenate(
-                (state.ee_pos, state.ee_vel, state.top_vel, state.obj_vel.ravel(), state.bottom_pos, state.top_pos,
-                 state.obj_pos.ravel())).tolist()
-        th, geo, v, gather = self.thresholds, self.geometry, self._state_values, self.gather
+    def _margins(self, state: SceneState | None = None) -> dict[str, Any]:
+        """Every margin term of the last state read (``state``, if given, must be that state)."""
+        if state is not None and state is not self._state:
+            raise ValueError("_margins works on the state of the last read; pass env.scene_state() or nothing")
+        th, geo, v, gather = self.thresholds, self.geometry, self._values, self.gather
         half = geo.box_half_extents
         b0 = gather.bottom_pos.start
         bottom = v[b0:b0 + 2]
@@ -258,7 +268,7 @@ class SlideOutEnv(gym.Env):
         terms: dict[str, Any] = {
             "l1": M.margin_out_from_under(bottom, top, half, half, th.out_clearance),
             "l2": M.margin_in_goal(bottom, geo.goal_xy, th.goal_radius),
-            "g_dyn": M.margin_top_box(top, self._top_start, float(self.data.xmat[self.index.top_box_body, 8]),
+            "g_dyn": M.margin_top_box(top, self._top_start, float(gather.xmat[gather.top_up_z]),
                                       th.top_box_displacement, th.top_box_min_up),
             "g_oob": M.margin_in_workspace(bottom, geo.table_half_extents, geo.workspace_inset),
         }
@@ -281,8 +291,8 @@ class SlideOutEnv(gym.Env):
                 object_terms[i] = term
                 if term < g_objects:
                     g_objects = term
-        terms["objects"] = np.array(object_terms)
-        terms["distances"] = np.array(distances)
+        terms["objects"] = np.array(object_terms) if n else _EMPTY
+        terms["distances"] = np.array(distances) if n else _EMPTY
         terms["l"] = min(terms["l1"], terms["l2"])
         terms["g"] = float(min(terms["g_dyn"], terms["g_oob"], g_objects))
         self._last_terms = terms
@@ -306,17 +316,16 @@ class SlideOutEnv(gym.Env):
         offset = state.obj_pos[:, :2] - state.bottom_pos[:2]
         return np.argsort(np.einsum("ij,ij->i", offset, offset), kind="stable")
 
-    def _observe(self, state: SceneState) -> np.ndarray:
-        ids = self.slot_ids(state)
-        if state is not self._last_state:
-            return build_observation(state, ids, self._constraint_onehot[ids])
-        # the same layout as ``build_observation`` (a test holds them equal) as one gather from the flat state
-        obs = self._obs_template.copy()
-        obs[self.gather.observation_targets] = self._flat_state[self.gather.observation_sources(ids)]
-        if self.slot_order != "index":  # the template's one-hots are in index order
-            obs[self.gather.onehot_targets] = self._constraint_onehot[ids].ravel()
-        np.minimum(obs, 10.0, out=obs)
-        return np.maximum(obs, -10.0, out=obs)
+    def _observe(self) -> np.ndarray:
+        """The observation of the last state read: ``build_observation``'s layout (a test holds them equal),
+        gathered from the flat state in one go."""
+        g = self.gather
+        ids = g.index_order if self.slot_order == "index" else self.slot_ids(self._current_state())
+        obs = self._flat[g.observation_sources(ids)].astype(np.float32)
+        values = self._values
+        if max(values) > 10.0 or min(values) < -10.0:  # rare: only then pay for the clip
+            np.clip(obs, -10.0, 10.0, out=obs)
+        return obs
 
     def _info(self, terms, event: str, culprit: int | None) -> dict:
         margins = {"l1": terms["l1"], "l2": terms["l2"], "g_dyn": terms["g_dyn"], "g_oob": terms["g_oob"]}
@@ -364,6 +373,8 @@ class SlideOutEnv(gym.Env):
             self._renderer = None
 
 
+_EMPTY = np.zeros(0)
+_EMPTY.flags.writeable = False
 _CACHE_SIZE = 64  # scenes (compiled model + data) kept per env: random object draws would otherwise grow without bound
 
 
@@ -374,13 +385,19 @@ def _evict_oldest(cache: dict) -> None:
 
 @dataclass(frozen=True)
 class _StateGather:
-    """Index arrays, built once per compiled scene, that read the state from MjData in two gathers.
+    """Index arrays and MjData views, built once per compiled scene, that read the state in two gathers.
 
-    The flat state is ``[ee_pos(3), hand_vel(3), top_vel(3), obj_vel(3N), bottom_pos(3), top_pos(3), obj_pos(3N)]``
-    (the held box moves with the hand, so the hand's velocity is the box's).
+    The flat state is ``[ee_pos(3), hand_vel(3), top_vel(3), obj_vel(3N), bottom_pos(3), top_pos(3),
+    obj_pos(3N), constraint one-hots(3N)]`` (the held box moves with the hand, so the hand's velocity is the
+    box's); an observation is one gather from it.
     """
 
+    xpos: np.ndarray  # views into this scene's MjData (its buffers never move)
+    qvel: np.ndarray
+    site_xpos: np.ndarray
+    xmat: np.ndarray  # flat
     ee_site: int
+    top_up_z: int  # index in ``xmat`` of the top box's up-axis z component
     body_rows: np.ndarray
     qvel_index: np.ndarray
     bottom_pos: slice
@@ -390,47 +407,37 @@ class _StateGather:
     reach: list[float]  # per object: bounding radius of its geoms plus the held box's
     geom_pairs: list[list[tuple[int, int]]]  # per object: (manipulated geom, object geom) pairs to query
     index_order: np.ndarray
-    observation_targets: np.ndarray  # observation entries filled from the flat state (all but the one-hots)
-    onehot_targets: np.ndarray  # the one-hot entries, slot by slot
     robot_sources: np.ndarray  # (18,): flat-state indices of the robot and box part of the observation
-    slot_sources: np.ndarray  # (N, 6): flat-state indices of each object's position and velocity
+    slot_sources: np.ndarray  # (N, 9): flat-state indices of each object's position, velocity and one-hot
     index_sources: np.ndarray  # observation_sources(index_order), the common case, precomputed
 
     @classmethod
-    def build(cls, index: SceneIndex, binding) -> "_StateGather":
+    def build(cls, index: SceneIndex, binding, data: mujoco.MjData) -> "_StateGather":
         n = len(index.object_bodies)
         p0 = 9 + 3 * n  # start of the positions block
+        h0 = p0 + 6 + 3 * n  # start of the one-hots
         bottom, top = slice(p0, p0 + 3), slice(p0 + 3, p0 + 6)
-        obj_pos, obj_vel = slice(p0 + 6, p0 + 6 + 3 * n), slice(9, 9 + 3 * n)
-        robot = np.r_[0:3, 3:6, bottom, 3:6, top, 6:9]
-        slots = np.array([np.r_[p0 + 6 + 3 * i:p0 + 9 + 3 * i, 9 + 3 * i:12 + 3 * i] for i in range(n)],
-                         dtype=np.intp).reshape(n, 6)
-        targets = np.r_[0:ROBOT_DIM, [ROBOT_DIM + SLOT_DIM * s + j for s in range(n) for j in range(6)]].astype(np.intp)
+        obj_pos, obj_vel = slice(p0 + 6, h0), slice(9, 9 + 3 * n)
+        robot = np.r_[0:3, 3:6, bottom, 3:6, top, 6:9].astype(np.intp)
+        slots = np.array([np.r_[p0 + 6 + 3 * i:p0 + 9 + 3 * i, 9 + 3 * i:12 + 3 * i, h0 + 3 * i:h0 + 3 * i + 3]
+                          for i in range(n)], dtype=np.intp).reshape(n, SLOT_DIM)
         manipulated = [int(g) for g in index.manipulated_geoms]
         return cls(
-            ee_site=int(binding.ee_site),
+            xpos=data.xpos, qvel=data.qvel, site_xpos=data.site_xpos, xmat=data.xmat.reshape(-1),
+            ee_site=int(binding.ee_site), top_up_z=9 * int(index.top_box_body) + 8,
             body_rows=np.r_[index.bottom_box_body, index.top_box_body, index.object_bodies].astype(np.intp),
             qvel_index=np.r_[binding.qvel_adr, np.arange(index.top_box_qvel, index.top_box_qvel + 3),
                              index.object_qvel_flat].astype(np.intp),
             bottom_pos=bottom, top_pos=top, obj_pos=obj_pos, obj_vel=obj_vel,
             reach=[float(r) + _MANIPULATED_REACH for r in index.object_reach],
             geom_pairs=[[(g1, int(g2)) for g1 in manipulated for g2 in geoms] for geoms in index.object_geoms],
-            index_order=np.arange(n), observation_targets=targets,
-            onehot_targets=np.array([ROBOT_DIM + SLOT_DIM * s + j for s in range(n) for j in range(6, 9)], dtype=np.intp),
-            robot_sources=robot.astype(np.intp), slot_sources=slots,
-            index_sources=np.concatenate((robot, slots.ravel())).astype(np.intp))
+            index_order=np.arange(n), robot_sources=robot, slot_sources=slots,
+            index_sources=np.concatenate((robot, slots.ravel())))
 
     def observation_sources(self, ids: np.ndarray) -> np.ndarray:
         if ids is self.index_order:
             return self.index_sources
         return np.concatenate((self.robot_sources, self.slot_sources[ids].ravel()))
-
-    def observation_template(self, constraints_onehot: np.ndarray) -> np.ndarray:
-        """An observation with only the constraint one-hots filled: they never change within an episode."""
-        n = len(constraints_onehot)
-        obs = np.zeros(observation_dim(n), dtype=np.float32)
-        obs[ROBOT_DIM:].reshape(n, SLOT_DIM)[:, 6:9] = constraints_onehot
-        return obs
 
 
 class TimeoutEvent(gym.Wrapper):
