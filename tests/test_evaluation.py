@@ -11,8 +11,9 @@ from safemanip.env.observation import observation_dim
 from safemanip.env.slide_out import SlideOutEnv
 from safemanip.evaluation.episode import format_selections, parse_selections, run_episode
 from safemanip.evaluation.harness import EvalConfigError, EvalRequest, evaluate, prepare, read_records
-from safemanip.evaluation.parallel import NumpyPolicy, chunk_seeds, run_episodes
+from safemanip.evaluation.parallel import chunk_seeds, run_episodes
 from safemanip.rl.checkpoint import save_policy
+from safemanip.rl.numpy_actor import NumpyActor
 from safemanip.scene.catalog import load_catalog
 from safemanip.selection.reducer import Reducer
 from safemanip.selection.selectors import ConservativeConstraints, DynamicKNN, GroundTruthConstraints
@@ -68,7 +69,7 @@ def touch_object_1(env):
     mujoco.mj_forward(env.model, env.data)
 
 
-ZERO = NumpyPolicy([np.zeros((3, observation_dim(1)), np.float32), np.zeros(3, np.float32)])
+ZERO = NumpyActor([np.zeros((3, observation_dim(1)), np.float32), np.zeros(3, np.float32)])
 
 
 @pytest.mark.parametrize("picked, expected", [([0], "collision_unselected"), ([1], "collision_selected")])
@@ -100,7 +101,7 @@ def test_selection_history_string_round_trips():
 
 def test_dynamic_selection_is_recorded_over_time():
     env = SlideOutEnv(n_objects=4, constraints="conservative", max_episode_steps=30)
-    actor = NumpyPolicy([np.zeros((3, observation_dim(2)), np.float32), np.array([0.5, -0.3, 0.0], np.float32)])
+    actor = NumpyActor([np.zeros((3, observation_dim(2)), np.float32), np.array([0.5, -0.3, 0.0], np.float32)])
     sel = DynamicKNN()
     rec = run_episode(env, actor, Reducer(2, "conservative"), sel, ConservativeConstraints(), seed=3)
     changes = parse_selections(rec["selections"])
@@ -134,7 +135,7 @@ def test_vlm_selector_gets_annotated_frames_only_when_it_queries():
     env = SlideOutEnv(n_objects=3, constraints="conservative", max_episode_steps=9)
     backend = RecordingBackend()
     builder = EnvViewBuilder(render_size=(96, 128))
-    still = NumpyPolicy([np.zeros((3, observation_dim(2)), np.float32), np.zeros(3, np.float32)])
+    still = NumpyActor([np.zeros((3, observation_dim(2)), np.float32), np.zeros(3, np.float32)])
     rec = run_episode(env, still, Reducer(2, "conservative"), DynamicVLMSelector(backend, query_interval=4),
                       ConservativeConstraints(), seed=1, builder=builder)
     assert rec["category"] == "timeout"

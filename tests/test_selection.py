@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from safemanip.env.observation import ROBOT_DIM, SLOT_DIM, SceneState, observation_dim
-from safemanip.evaluation.parallel import NumpyPolicy
+from safemanip.rl.numpy_actor import NumpyActor
 from safemanip.selection.base import SceneView
 from safemanip.selection.reducer import DUMMY_POSITIONS, Reducer, order_by_distance
 from safemanip.selection.selectors import (CONSTRAINT_SELECTORS, OBJECT_SELECTORS, ConservativeConstraints,
@@ -198,4 +198,4 @@ def test_numpy_policy_matches_the_torch_actor():
     obs = np.random.default_rng(0).normal(size=(5, observation_dim(2))).astype(np.float32)
     with torch.no_grad():
         expected = actor(torch.from_numpy(obs)).numpy()
-    np.testing.assert_allclose(NumpyPolicy(actor_arrays(actor))(obs), expected, atol=1e-5)
+    np.testing.assert_allclose(NumpyActor(actor_arrays(actor))(obs), expected, atol=1e-5)

@@ -101,13 +101,12 @@ class SlideOutEnv(gym.Env):
         """Per-episode lookups that depend only on (names, constraints): computed once per combination."""
         key = (names, constraints)
         if key not in self._tables:
-            onehot = encode_constraints(constraints)
             soft = [c == "soft_contact" for c in constraints]
             checked = [i for i, c in enumerate(constraints) if c != "any_contact"]
             margin_names = {i: f"{'g_soft' if soft[i] else 'g_hard'}:{i}:{names[i]}" for i in checked}
             _evict_oldest(self._tables)
-            self._tables[key] = (onehot, onehot.ravel().astype(np.float64), np.array(soft, dtype=bool), soft,
-                                 checked, margin_names)
+            self._tables[key] = (encode_constraints(constraints).ravel().astype(np.float64), soft, checked,
+                                 margin_names)
         return self._tables[key]
 
     def _choose_names(self, rng: np.random.Generator) -> tuple[str, ...]:
@@ -154,8 +153,8 @@ class SlideOutEnv(gym.Env):
             d.qpos[adr + 3:adr + 7] = (np.cos(placement.yaw[i] / 2), 0, 0, np.sin(placement.yaw[i] / 2))
         mujoco.mj_forward(m, d)
         self._top_start = d.xpos[idx.top_box_body, :2].tolist()
-        (self._constraint_onehot, self._onehot_flat, self._object_is_soft, self._soft_flags, self._checked_list,
-         self._margin_names) = self._constraint_tables(names, self.constraints)
+        self._onehot_flat, self._soft_flags, self._checked_list, self._margin_names = \
+            self._constraint_tables(names, self.constraints)
         self._t = 0
         self._read_state()
         terms = self._margins()
@@ -303,7 +302,7 @@ class SlideOutEnv(gym.Env):
         worst_obj = None
         if len(self.names) and np.isfinite(terms["objects"]).any():
             worst_obj = int(np.argmin(terms["objects"]))
-            kind = "failure:soft" if self._object_is_soft[worst_obj] else "failure:hard"
+            kind = "failure:soft" if self._soft_flags[worst_obj] else "failure:hard"
             candidates[kind] = terms["objects"][worst_obj]
         event = min(candidates, key=candidates.get)
         return event, (worst_obj if event in ("failure:hard", "failure:soft") else None)

@@ -24,8 +24,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from safemanip.rl.numpy_actor import NumpyActor
-
+from safemanip.rl.numpy_actor import NumpyActor  # no torch import: workers start fast
 from safemanip.selection.selectors import SelectorOptions
 
 BACKENDS = ("local", "ray")
@@ -59,10 +58,6 @@ def one_blas_thread() -> Iterator[None]:
         yield
 
 
-# the actor's forward pass in NumPy; its module does not import torch, so workers start fast
-NumpyPolicy = NumpyActor
-
-
 def run_chunk(spec: EvalSpec, seeds: list[int]) -> list[dict]:
     """Records of the episodes with these seeds, in the order given."""
     from safemanip.env.slide_out import SlideOutEnv
@@ -74,7 +69,7 @@ def run_chunk(spec: EvalSpec, seeds: list[int]) -> list[dict]:
     with one_blas_thread():
         env = SlideOutEnv(**spec.env_kwargs)
         try:
-            actor = NumpyPolicy(spec.actor_arrays)
+            actor = NumpyActor(spec.actor_arrays)
             reducer = Reducer(spec.k, spec.policy_constraints, pad=spec.pad)
             osel = make_object_selector(spec.selector, spec.options)
             csel = make_constraint_selector(spec.constraints, spec.options)

@@ -149,10 +149,15 @@ def logistic_probabilities(embeddings: np.ndarray, weights: np.ndarray, bias: np
     return e / e.sum(axis=1, keepdims=True)
 
 
+def _flat_examples(examples: dict[str, list[str]]) -> tuple[list[str], np.ndarray]:
+    """Every example name, class by class, with its class index."""
+    names = [n for c in SEMANTIC_CLASSES for n in examples[c]]
+    return names, np.array([i for i, c in enumerate(SEMANTIC_CLASSES) for _ in examples[c]])
+
+
 def _embed_examples(examples: dict[str, list[str]], embedder: "Embedder | None") -> tuple[np.ndarray, np.ndarray]:
     embed = embedder if embedder is not None else minilm_embedder()
-    names = [n for c in SEMANTIC_CLASSES for n in examples[c]]
-    labels = np.array([i for i, c in enumerate(SEMANTIC_CLASSES) for _ in examples[c]])
+    names, labels = _flat_examples(examples)
     emb = np.asarray(embed(names), dtype=np.float64)
     return emb / np.maximum(np.linalg.norm(emb, axis=1, keepdims=True), 1e-12), labels
 
@@ -308,9 +313,8 @@ class SemanticBackend:
     def _ensure_prototypes(self):
         """The fitted classifier: class prototypes (cosine rules) or logistic weights, built on first use."""
         if self._prototypes is None:
-            flat = [n for c in SEMANTIC_CLASSES for n in self.examples[c]]
-            labels = np.array([i for i, c in enumerate(SEMANTIC_CLASSES) for _ in self.examples[c]])
-            emb = self._embed_normalised(flat)
+            names, labels = _flat_examples(self.examples)
+            emb = self._embed_normalised(names)
             if self.logistic:
                 fit = {k: self.decision[k] for k in LOGISTIC_DEFAULTS}
                 self._prototypes = fit_logistic(emb, labels, **fit)
