@@ -1,5 +1,6 @@
-"""The ``safemanip/SlideOut-v0`` Gymnasium env: API conformance, determinism, events on hand-placed
-MuJoCo states, the tablecloth effect, the scripted controller, instability handling and rendering."""
+"""The ``safemanip/SlideOut-v0`` Gymnasium env on its default embodiment, the Franka Panda: API conformance,
+determinism, events on hand-placed MuJoCo states (judged at every physics substep), placement success,
+the tablecloth effect, the scripted controller, instability handling and rendering."""
 
 from __future__ import annotations
 
@@ -35,9 +36,10 @@ def place_object(env, i, xy, z=0.0005, quat=(1.0, 0.0, 0.0, 0.0)):
 
 
 def beside_bottom_box(env, radius, gap):
-    """Base position of a cylinder of ``radius`` standing ``gap`` m off the bottom box's +x face."""
+    """Base position of a cylinder of ``radius`` standing ``gap`` m off the bottom box's +y face (the far side,
+    away from the robot's fingers on the +x lip)."""
     bx, by, _ = env.data.xpos[env.index.bottom_box_body]
-    return (bx + HX + radius + gap, by)
+    return (bx + 0.03, by + HY + radius + gap)
 
 
 def rollout(env, seed, actions, options=None):
@@ -115,7 +117,7 @@ def test_observation_layout_matches_the_simulation():
     env = SlideOutEnv(n_objects=3, constraints=("soft_contact", "no_contact", "any_contact"))
     obs, info = env.reset(seed=5)
     d, idx = env.data, env.index
-    np.testing.assert_allclose(obs[0:3], env.hand.ee_position(d, env.binding), atol=1e-6)
+    np.testing.assert_allclose(obs[0:3], d.site_xpos[env.binding.ee_site], atol=1e-6)
     np.testing.assert_allclose(obs[6:9], d.xpos[idx.bottom_box_body], atol=1e-6)
     np.testing.assert_allclose(obs[12:15], d.xpos[idx.top_box_body], atol=1e-6)
     slots = obs[ROBOT_DIM:].reshape(3, SLOT_DIM)
@@ -142,13 +144,16 @@ def test_fast_observation_path_equals_the_public_builder(slot_order):
         distances = env.object_distances()
         for i, c in enumerate(env.constraints):
             key = f"{'g_soft' if c == 'soft_contact' else 'g_hard'}:{i}:{env.names[i]}"
-            if c == "no_contact":
-                assert info["margins"][key] == pytest.approx(margin_no_contact(distances[i], 0.01), abs=1e-12)
-            elif c == "soft_contact":
-                assert info["margins"][key] == pytest.approx(
-                    margin_soft_contact(distances[i], rel[i], 0.01, 1.0), abs=1e-12)
-            else:
+            if c == "any_contact":
                 assert key not in info["margins"]
+                continue
+            at_the_end = (margin_no_contact(distances[i], 0.01) if c == "no_contact"
+                          else margin_soft_contact(distances[i], rel[i], 0.01, 1.0))
+            # a step's margin is the worst over its substeps and its end state: never above the end state's,
+            # and equal to it whenever nothing came within d4 during the step (the margin is then positive)
+            assert info["margins"][key] <= at_the_end + 1e-12
+            if info["margins"][key] > 0:
+                assert info["margins"][key] == pytest.approx(at_the_end, abs=1e-12)
         obs, _, terminated, truncated, info = env.step(ctrl.act(info, env))
         if terminated or truncated:
             break
@@ -214,7 +219,7 @@ def test_constraint_modes():
     env = SlideOutEnv(n_objects=6, constraints="conservative")
     _, info = env.reset(seed=2)
     assert info["constraints"] == ("no_contact",) * 6
-    assert all(k.startswith("g_hard:") for k in info["margins"] if ":" in k) and len(info["margins"]) == 4 + 6
+    assert all(k.startswith("g_hard:") for k in info["margins"] if ":" in k) and len(info["margins"]) == 5 + 6
     env = SlideOutEnv(n_objects=6, constraints="random")
     seen = set()
     for seed in range(5):
@@ -223,7 +228,7 @@ def test_constraint_modes():
     assert seen == set(CONSTRAINT_TYPES)
     # per-episode override
     _, info = env.reset(seed=0, options={"constraints": ("any_contact",) * 6})
-    assert info["constraints"] == ("any_contact",) * 6 and len(info["margins"]) == 4
+    assert info["constraints"] == ("any_contact",) * 6 and len(info["margins"]) == 5
 
 
 def test_classes_and_names_requests():
@@ -248,7 +253,8 @@ def test_classes_and_names_requests():
     ({"constraints": ("no_contact", "gentle")}, ValueError, "one constraint per object"),
     ({"render_mode": "human"}, ValueError, "render_mode must be None or 'rgb_array'"),
     ({"max_episode_steps": 0}, ValueError, "max_episode_steps"),
-    ({"max_step": 0.0}, ValueError, "max_step"),
+    ({"max_episode_steps": 10**12}, ValueError, "max_episode_steps"),
+    ({"embodiment": "ur5"}, ValueError, "embodiment must be one of"),
     ({"n_objects": 9}, SceneConfigError, "n_objects must be an integer from 0 to 8"),
     ({"n_objects": -1}, SceneConfigError, "n_objects must be an integer from 0 to 8"),
     ({"classes": "2 fragile, 1 soft"}, SceneConfigError, "3 classes given for n_objects=2"),
@@ -270,7 +276,7 @@ def test_fragile_object_within_threshold_fails_hard():
     place_object(env, 0, beside_bottom_box(env, 0.045, 0.005))
     assert env.object_distances()[0] == pytest.approx(0.005, abs=1e-4)
     _, reward, terminated, truncated, info = env.step(ZERO)
-    assert info["margins"]["g_hard:0:glass jar"] == pytest.approx(-0.005, abs=2e-4)
+    assert info["margins"]["g_hard:0:glass jar"] == pytest.approx(-0.005, abs=5e-4)
     assert info["g"] == pytest.approx(info["margins"]["g_hard:0:glass jar"])
     assert (info["event"], info["object"], info["object_id"]) == ("failure:hard", "glass jar", 0)
     assert terminated and not truncated and reward < 0
@@ -293,34 +299,50 @@ def test_fragile_object_just_outside_the_threshold_is_safe():
     env.reset(seed=0)
     place_object(env, 0, beside_bottom_box(env, 0.045, 0.02))
     *_, terminated, truncated, info = env.step(ZERO)
-    assert info["margins"]["g_hard:0:glass jar"] == pytest.approx(0.01, abs=2e-4)
+    assert info["margins"]["g_hard:0:glass jar"] == pytest.approx(0.01, abs=5e-4)
     assert info["event"] == "running" and not terminated and not truncated
 
 
-@pytest.mark.parametrize("speed_action,event", [(1.0, "failure:soft"), (0.1, "running")])
-def test_soft_object_fails_only_on_a_fast_contact(speed_action, event):
-    """The box slides past a soda can 5 mm away: at ~2 m/s that breaks g_soft, at ~0.2 m/s it does not."""
+def _push_soda_can(approach_x, steps=40):
+    """Pull the box out fast, then drive it to the right at ``approach_x`` into a soda can 45 cm ahead."""
     env = SlideOutEnv(n_objects=1, names=["soda can"])  # soft, 3.3 cm radius
-    env.reset(seed=0)
-    place_object(env, 0, beside_bottom_box(env, 0.033, 0.005))
-    _, _, terminated, _, info = env.step(np.array([0.0, speed_action, 0.0], dtype=np.float32))
+    _, info = env.reset(seed=0)
+    bx, by, _ = env.data.xpos[env.index.bottom_box_body]
+    place_object(env, 0, (bx + HX + 0.033 + 0.45, by + 0.06))
+    infos = []
+    for _ in range(steps):
+        action_x = 1.0 if info["margins"]["l1"] <= 0 else approach_x
+        *_, terminated, _, info = env.step(np.array([action_x, 0.0, 0.0], dtype=np.float32))
+        infos.append(info)
+        if terminated:
+            break
+    return env, infos
+
+
+def test_soft_object_fails_on_a_fast_impact():
+    """At the Panda's speed (~1.4 m/s) hitting a soda can breaks g_soft (relative speed > 1 m/s)."""
+    env, infos = _push_soda_can(1.0)
+    info = infos[-1]
+    assert (info["event"], info["object"]) == ("failure:soft", "soda can"), [i["event"] for i in infos]
+    assert info["margins"]["g_soft:0:soda can"] < 0
+
+
+def test_soft_object_may_be_pushed_gently():
+    """At ~0.3 m/s the box touches and pushes the can: g_soft stays positive, the episode goes on."""
+    env, infos = _push_soda_can(0.18)
+    can_start = infos[0]
+    assert all(i["event"] == "running" for i in infos), [i["event"] for i in infos]
     state = env.scene_state()
-    rel_speed = float(np.linalg.norm(state.bottom_vel - state.obj_vel[0]))
-    assert env.object_distances()[0] == pytest.approx(0.005, abs=2e-4)  # still alongside, within the threshold
-    g_soft = info["margins"]["g_soft:0:soda can"]
-    assert g_soft == pytest.approx(max(0.005 - 0.01, 1.0 - rel_speed), abs=2e-4)
-    assert info["event"] == event
-    if event == "failure:soft":
-        assert rel_speed > 1.5 and g_soft < 0 and terminated and info["object"] == "soda can"
-    else:
-        assert rel_speed < 0.5 and g_soft > 0.5 and not terminated and info["object"] is None
+    assert env.object_distances()[0] < 0.01  # in contact ...
+    assert state.obj_pos[0, 0] > env.data.xpos[env.index.bottom_box_body, 0] + HX  # ... ahead of the box
+    assert all(i["margins"]["g_soft:0:soda can"] > 0 for i in infos) and can_start is not None
 
 
 def test_same_contact_with_a_fragile_object_fails_even_when_slow():
     env = SlideOutEnv(n_objects=1, names=["glass jar"])
     env.reset(seed=0)
     place_object(env, 0, beside_bottom_box(env, 0.045, 0.005))
-    *_, terminated, _, info = env.step(np.array([0.0, 0.1, 0.0], dtype=np.float32))
+    *_, terminated, _, info = env.step(np.array([0.1, 0.0, 0.0], dtype=np.float32))
     assert terminated and info["event"] == "failure:hard"
 
 
@@ -331,8 +353,8 @@ def test_durable_object_has_no_margin_at_all():
     place_object(env, 0, beside_bottom_box(env, 0.04, -0.004))  # penetrating
     terms = env._margins(env.scene_state())
     assert np.isinf(terms["objects"][0])
-    *_, terminated, _, info = env.step(np.array([0.0, 1.0, 0.0], dtype=np.float32))  # and hit fast
-    assert set(info["margins"]) == {"l1", "l2", "g_dyn", "g_oob"}
+    *_, terminated, _, info = env.step(np.array([0.0, 1.0, 0.0], dtype=np.float32))  # and hit
+    assert set(info["margins"]) == {"l1", "l2", "l3", "g_dyn", "g_oob"}
     assert info["g"] == pytest.approx(min(info["margins"]["g_dyn"], info["margins"]["g_oob"]))
     assert info["event"] == "running" and not terminated
 
@@ -345,23 +367,61 @@ def test_conservative_mode_turns_a_durable_object_into_a_hard_constraint():
     assert terminated and info["event"] == "failure:hard" and info["object"] == "wooden block"
 
 
-def test_hand_palm_counts_as_part_of_the_manipulated_body():
+def _float_object_beside_geom(env, geom_name, gap):
+    """Put object 0 in the air at ``gap`` m (+-1 mm) in +y from robot geom ``geom_name``; return that distance."""
+    m, d = env.model, env.data
+    geom = m.geom(geom_name).id
+    centre = d.geom_xpos[geom].copy()
+    object_geoms = env.index.object_geoms[0]
+
+    def distance(offset):
+        place_object(env, 0, (centre[0], centre[1] + offset), z=centre[2] - 0.07)
+        return min(mujoco.mj_geomDistance(m, d, geom, int(g), 1.0, None) for g in object_geoms)
+
+    low, high = 0.0, 0.5
+    for _ in range(40):  # bisection on the offset: the distance grows with it
+        mid = 0.5 * (low + high)
+        low, high = (mid, high) if distance(mid) < gap else (low, mid)
+    return distance(high)
+
+
+@pytest.mark.parametrize("geom_name", ["panda/hand_col", "panda/link6_col", "panda/link4_col"])
+def test_every_robot_link_counts_as_manipulated(geom_name):
+    """A fragile object 5 mm from an arm link (far from the held box) fails the episode: the per-substep
+    contact check covers every robot geom, not only the box and hand that shape g when nothing is near."""
     env = SlideOutEnv(n_objects=1, names=["glass jar"])
     env.reset(seed=0)
-    palm = env.model.geom("hand_palm").id
-    px, py, _ = env.data.geom_xpos[palm]
-    # in front of the palm (-y side), 5 mm from its face; the box is farther away
-    place_object(env, 0, (px, py - 0.03 - 0.045 - 0.005))
-    assert env.object_distances()[0] == pytest.approx(0.005, abs=2e-4)
-    *_, info = env.step(ZERO)
-    assert info["event"] == "failure:hard"
+    assert _float_object_beside_geom(env, geom_name, 0.005) == pytest.approx(0.005, abs=1e-3)
+    box = env.model.geom("box_bottom").id
+    to_box = min(mujoco.mj_geomDistance(env.model, env.data, box, int(g), 1.0, None) for g in env.index.object_geoms[0])
+    assert to_box > 0.03
+    *_, terminated, _, info = env.step(ZERO)
+    assert terminated and (info["event"], info["object"]) == ("failure:hard", "glass jar")
+
+
+def test_a_contact_between_two_control_steps_fails_the_episode():
+    """A ball flies past the box's far side within 5 mm in the middle of a control step: at the step's start and
+    end it is > 10 cm away, so only the per-substep judge can see it. At 3 cm it is no failure."""
+    for gap, expected in ((0.005, "failure:hard"), (0.03, "running")):
+        env = SlideOutEnv(n_objects=1, names=["tennis ball"], constraints="conservative")
+        env.reset(seed=0)
+        radius = env.model.geom_size[env.index.object_geoms[0][0], 0]
+        bx, by, _ = env.data.xpos[env.index.bottom_box_body]
+        y = by + HY + radius + gap
+        place_object(env, 0, (bx - HX - radius - 0.20, y), z=HZ - radius + 0.002)
+        env.data.qvel[env.index.object_qvel[0]] = (bx + HX + radius + 0.20 - (bx - HX - radius - 0.20)) / 0.05
+        mujoco.mj_forward(env.model, env.data)
+        assert env.object_distances()[0] > 0.1
+        *_, terminated, _, info = env.step(ZERO)
+        assert env.object_distances()[0] > 0.1, "the ball should be past the box at the end of the step"
+        assert info["event"] == expected, (gap, info["event"], info["margins"])
 
 
 def test_top_box_teleported_fails_dyn():
     env = SlideOutEnv(n_objects=0)
     env.reset(seed=0)
     adr = env.index.top_box_qpos
-    env.data.qpos[adr] += 0.2
+    env.data.qpos[adr] -= 0.2
     mujoco.mj_forward(env.model, env.data)
     _, reward, terminated, _, info = env.step(ZERO)
     assert info["margins"]["g_dyn"] == pytest.approx(-0.1, abs=0.01)
@@ -385,7 +445,7 @@ def test_the_worst_margin_names_the_failure():
     env = SlideOutEnv(n_objects=1, names=["glass jar"])
     env.reset(seed=0)
     place_object(env, 0, beside_bottom_box(env, 0.045, 0.005))  # g_hard = -0.005
-    env.data.qpos[env.index.top_box_qpos + 1] += 0.25  # g_dyn = -0.15 (away from the jar)
+    env.data.qpos[env.index.top_box_qpos] -= 0.25  # g_dyn = -0.15 (away from the jar)
     mujoco.mj_forward(env.model, env.data)
     *_, info = env.step(ZERO)
     assert info["margins"]["g_hard:0:glass jar"] < 0 and info["margins"]["g_dyn"] < info["margins"]["g_hard:0:glass jar"]
@@ -393,7 +453,7 @@ def test_the_worst_margin_names_the_failure():
 
 
 def test_box_off_the_table_edge_fails_oob():
-    env = SlideOutEnv(n_objects=0)
+    env = SlideOutEnv(n_objects=0, embodiment="hand")  # the hand can be teleported by its slide joints
     env.reset(seed=0)
     qx = env.binding.qpos_adr[0]
     x0 = env.data.xpos[env.index.bottom_box_body][0]
@@ -404,15 +464,38 @@ def test_box_off_the_table_edge_fails_oob():
     assert terminated and info["event"] == "failure:oob"
 
 
+# ================================================================== success means placed
+
+
+def test_a_box_passing_through_the_goal_at_speed_is_not_a_success():
+    """Teleport the box (hand ablation) onto the goal centre while it moves at 1 m/s: l2 > 0 but l3 < 0."""
+    env = SlideOutEnv(n_objects=0, embodiment="hand")
+    env.reset(seed=0)
+    d, b = env.data, env.binding
+    box = env.data.xpos[env.index.bottom_box_body]
+    d.qpos[b.qpos_adr[0]] += GEOMETRY.goal_xy[0] - box[0] - 0.05
+    d.qpos[b.qpos_adr[1]] += GEOMETRY.goal_xy[1] - box[1]
+    d.qvel[b.qvel_adr[0]] = 1.0
+    mujoco.mj_forward(env.model, env.data)
+    *_, terminated, _, info = env.step(np.array([1.0, 0.0, 0.0], dtype=np.float32))
+    assert info["margins"]["l2"] > 0 and info["margins"]["l1"] > 0
+    assert info["margins"]["l3"] < 0 and info["l"] == pytest.approx(info["margins"]["l3"])
+    assert info["event"] == "running" and not terminated
+
+
 # ================================================================== dynamics
 
 
-def _pull_and_settle(action_y, pull_steps=16, settle_steps=20):
+def _pull_out_and_settle(action_x, settle_steps=20):
+    """Pull to the right until the bottom box is out from under the top one, then stop; return how far the
+    top box moved (horizontally) and the env."""
     env = SlideOutEnv(n_objects=0)
-    env.reset(seed=0)
+    _, info = env.reset(seed=0)
     start = env.data.xpos[env.index.top_box_body, :2].copy()
-    for _ in range(pull_steps):  # keep pulling whatever the event: we measure the physics
-        env.step(np.array([0.0, action_y, 0.0], dtype=np.float32))
+    for _ in range(40):  # keep pulling whatever the event: we measure the physics
+        if info["margins"]["l1"] > 0:
+            break
+        *_, info = env.step(np.array([action_x, 0.0, 0.0], dtype=np.float32))
     for _ in range(settle_steps):
         env.step(ZERO)
     return env, float(np.linalg.norm(env.data.xpos[env.index.top_box_body, :2] - start))
@@ -420,24 +503,23 @@ def _pull_and_settle(action_y, pull_steps=16, settle_steps=20):
 
 @pytest.mark.slow
 def test_slow_pull_drags_the_top_box_along():
-    env, moved = _pull_and_settle(-0.25)  # 0.5 m/s
-    assert moved > 0.2, moved  # measured 0.38 m
+    env, moved = _pull_out_and_settle(0.25)  # ~0.4 m/s
+    assert moved > env.thresholds.top_box_displacement, moved
 
 
 @pytest.mark.slow
 def test_fast_pull_leaves_the_top_box_behind():
-    env, moved = _pull_and_settle(-1.0)  # 2 m/s: the tablecloth trick
-    assert moved < 0.06, moved  # measured 0.03 m
+    env, moved = _pull_out_and_settle(1.0)  # the Panda at its limits: the tablecloth trick
+    assert moved < 0.08, moved
     assert env.data.xmat[env.index.top_box_body, 8] > 0.99  # still upright
-    assert env.scene_state().bottom_pos[1] < -0.3  # the bottom box really was pulled out
 
 
 @pytest.mark.slow
 def test_fast_pull_gets_the_box_out_without_failing():
     env = SlideOutEnv(n_objects=0)
-    env.reset(seed=0)
-    for _ in range(6):
-        *_, terminated, _, info = env.step(np.array([0.0, -1.0, 0.0], dtype=np.float32))
+    _, info = env.reset(seed=0)
+    for _ in range(8):
+        *_, terminated, _, info = env.step(np.array([1.0, 0.0, 0.0], dtype=np.float32))
         assert not terminated, info
     assert info["margins"]["l1"] > 0 and info["margins"]["g_dyn"] > 0
 

@@ -73,6 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--algorithm", choices=["rarl", "vanilla"])
     tr.add_argument("--n-objects", "--k", dest="n_objects", type=int, help="clutter objects in training scenes (k)")
     tr.add_argument("--constraints", choices=["conservative", "all"])
+    tr.add_argument("--embodiment", choices=["panda", "hand"], help="robot (default panda; hand = idealised ablation)")
     tr.add_argument("--total-env-steps", dest="total_env_steps", type=int)
     tr.add_argument("--minutes", type=float, help="wall-clock budget (0: none)")
     tr.add_argument("--seed", type=int)

@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import math
 
+import numpy as np
+
 
 @dataclass(frozen=True)
 class Thresholds:
@@ -28,6 +30,10 @@ class Thresholds:
     """d4: collision threshold (paper Table V: 0.01 m)."""
     relative_speed: float = 1.0
     """Soft-contact relative velocity threshold (paper Table V: 1.0 m/s)."""
+    place_speed: float = 0.05
+    """v_place: the box counts as placed only when slower than this [m/s]. 5 cm/s is 3 % of the Panda's
+    1.7 m/s and a Panda stops from it in 4 ms at 13 m/s^2, so the box is at rest in the goal for any
+    practical purpose, yet a policy need not wait for the last vibration to die out."""
 
 
 DEFAULT_THRESHOLDS = Thresholds()
@@ -53,6 +59,26 @@ def margin_top_box(top_xy, top_xy_start, top_up_z: float, max_displacement: floa
     """g_dyn: the top box stays within d3 of its start (horizontally) and is not flipped."""
     displaced = max_displacement - math.hypot(top_xy[0] - top_xy_start[0], top_xy[1] - top_xy_start[1])
     return min(displaced, float(top_up_z) - min_up)
+
+
+def margin_at_rest(speed: float, place_speed: float) -> float:
+    """l3 = v_place - ||v_bot||: the box is placed, not passing through (m/s, like g_soft's speed term)."""
+    return float(place_speed - speed)
+
+
+def worst_top_box(top_xy_path: np.ndarray, top_xy_start, top_up_z_path: np.ndarray, max_displacement: float,
+                  min_up: float) -> float:
+    """min over a path (rows = physics substeps) of ``margin_top_box``."""
+    dx = top_xy_path[:, 0] - top_xy_start[0]
+    dy = top_xy_path[:, 1] - top_xy_start[1]
+    displaced = max_displacement - math.sqrt(float(np.max(dx * dx + dy * dy)))
+    return min(displaced, float(np.min(top_up_z_path)) - min_up)
+
+
+def worst_in_workspace(xy_path: np.ndarray, half_extents, inset: float) -> float:
+    """min over a path (rows = physics substeps) of ``margin_in_workspace``."""
+    far = np.max(np.abs(xy_path), axis=0)
+    return margin_in_workspace(far, half_extents, inset)
 
 
 def margin_no_contact(distance: float, collision: float) -> float:

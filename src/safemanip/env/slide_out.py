@@ -2,8 +2,14 @@
 that the top box stays put, then slide it to the goal without hurting the clutter.
 
 One step = one 20 Hz control step = 25 physics steps of 2 ms. The action is the end-effector
-displacement in [-1, 1]^3, scaled by ``max_step`` (0.1 m, i.e. up to 2 m/s): the hand's set-point
-ramps from where the end-effector is to ``ee + action * max_step`` over the control step.
+displacement over the step as a vector in the unit ball (longer actions are scaled back onto it), times
+the Panda's 1.7 m/s: at most 8.5 cm per step. The commanded velocity then passes the Panda's Cartesian
+acceleration limit (13 m/s^2) and the lift band (the box slides; it may rise 2 cm at most), and the
+embodiment (``panda`` by default, or the idealised ``hand``) tracks it.
+
+Safety is judged at every physics substep (``scene/builder.py``): a step's g is the minimum over its 25
+substeps and its end state, so no contact between two 20 Hz observations goes unseen. Success means
+placed: the box in the goal, slower than v_place, out from under the top box, which is still safe.
 """
 
 from __future__ import annotations
@@ -16,18 +22,20 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from safemanip.control.diff_ik import MAX_EE_ACCEL, MAX_EE_SPEED, limit_ee_velocity
 from safemanip.env import margins as M
 from safemanip.env.observation import SLOT_DIM, SceneState, encode_constraints, observation_space
-from safemanip.scene.builder import CONTROL_DT, TIMESTEP, SceneIndex, build_model
+from safemanip.scene.builder import CONTROL_DT, SUBSTEPS, TIMESTEP, SceneIndex, build_model
 from safemanip.scene.catalog import CONSTRAINT_TYPES, load_catalog, names_of_class
 from safemanip.scene.config import GEOMETRY, SceneConfig
-from safemanip.scene.embodiment import CartesianHand
+from safemanip.scene.embodiment import EMBODIMENTS, make_embodiment
 from safemanip.scene.placement import sample_placement
 
 CONSTRAINT_MODES = ("ground_truth", "conservative", "random")
 EVENTS = ("running", "success", "failure:dyn", "failure:hard", "failure:soft", "failure:oob", "timeout", "unstable")
 DISTANCE_CAP = 0.3  # geom distances saturate here: far objects do not need an exact value
-_MANIPULATED_REACH = 0.22  # bounding radius of the held box and palm around the box centre
+_MANIPULATED_REACH = 0.25  # bounding radius of the held box and the hand around the box centre
+LIFT_BAND = 0.02  # the box may be lifted at most this far above resting on the table [m]
 
 
 class SlideOutEnv(gym.Env):
@@ -35,9 +43,9 @@ class SlideOutEnv(gym.Env):
 
     def __init__(self, n_objects: int = 4, names: Sequence[str] | None = None, classes: Sequence[str] | str | None = None,
                  constraints: str | Sequence[str] = "ground_truth", near_path_fraction: float = 0.5,
-                 render_mode: str | None = None, max_episode_steps: int = 300, max_step: float = 0.1,
+                 render_mode: str | None = None, max_episode_steps: int = 300,
                  thresholds: M.Thresholds = M.DEFAULT_THRESHOLDS, sleep: bool = True, slot_order: str = "index",
-                 render_size: tuple[int, int] = (480, 640)):
+                 render_size: tuple[int, int] = (480, 640), embodiment: str = "panda", visual: bool | None = None):
         if isinstance(classes, str):
             from safemanip.scene.config import parse_semantics
             classes = parse_semantics(classes)
@@ -57,25 +65,32 @@ class SlideOutEnv(gym.Env):
         self.slot_order = slot_order
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        if max_episode_steps < 1 or max_step <= 0:
-            raise ValueError("max_episode_steps must be >= 1 and max_step > 0")
+        if not isinstance(max_episode_steps, (int, np.integer)) or not 1 <= max_episode_steps <= 100_000:
+            raise ValueError(f"max_episode_steps must be an integer from 1 to 100000, got {max_episode_steps!r}")
+        if embodiment not in EMBODIMENTS:
+            raise ValueError(f"embodiment must be one of {sorted(EMBODIMENTS)}, got {embodiment!r}")
+        self.embodiment_name = embodiment
         self.constraint_mode = constraints
         self.render_mode = render_mode
         self.max_episode_steps = int(max_episode_steps)
-        self.max_step = float(max_step)
+        self.max_speed = MAX_EE_SPEED
+        self.max_accel = MAX_EE_ACCEL
+        self.max_step = self.max_speed * CONTROL_DT  # the longest displacement one action can ask for [m]
         self.thresholds = thresholds
         self.sleep = sleep
         self.render_size = render_size
         self.geometry = GEOMETRY
-        self.hand = CartesianHand()
-        self._speed_scale = self.max_step / CONTROL_DT
-        self.n_substeps = int(round(CONTROL_DT / TIMESTEP))
+        # visual meshes only when frames will be rendered: they are ~95 % of a compile, physics is the same
+        self.visual = (render_mode is not None) if visual is None else bool(visual)
+        self.robot = make_embodiment(embodiment, visual=self.visual, gap=thresholds.collision)
+        self.n_substeps = SUBSTEPS
         self.observation_space = observation_space(n_objects)
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
         self._sims: dict[tuple[str, ...], tuple] = {}
         self._radii: dict[tuple[str, ...], np.ndarray] = {}
         self._tables: dict[tuple, tuple] = {}
         self._renderer = None
+        self._substep_hook = None
         self.model = self.data = None
         self.names: tuple[str, ...] = ()
         self.constraints: tuple[str, ...] = ()
@@ -83,11 +98,11 @@ class SlideOutEnv(gym.Env):
     # ------------------------------------------------------------------ set-up
     def _sim(self, names: tuple[str, ...]):
         if names not in self._sims:
-            model = build_model(names, self.sleep)
+            model = build_model(names, self.sleep, self.embodiment_name, self.visual, self.thresholds.collision)
             data = mujoco.MjData(model)
-            index, binding = SceneIndex.from_model(model, len(names)), self.hand.bind(model)
+            index, binding = SceneIndex.from_model(model, len(names), self.robot), self.robot.bind(model)
             _evict_oldest(self._sims)
-            self._sims[names] = (model, data, index, binding, _StateGather.build(index, binding, data))
+            self._sims[names] = (model, data, index, binding, _StateGather.build(model, index, binding, data))
         return self._sims[names]
 
     def _footprint_radii(self, names: tuple[str, ...]) -> np.ndarray:
@@ -147,6 +162,7 @@ class SlideOutEnv(gym.Env):
         placement = sample_placement(self._footprint_radii(names), rng, self.config.near_path_fraction, self.geometry)
         m, d, idx = self.model, self.data, self.index
         mujoco.mj_resetData(m, d)
+        self.robot.reset(m, d, self.binding)
         for i in range(len(names)):
             adr = idx.object_qpos[i]
             d.qpos[adr:adr + 3] = (*placement.xy[i], 0.0005)
@@ -156,20 +172,39 @@ class SlideOutEnv(gym.Env):
         self._onehot_flat, self._soft_flags, self._checked_list, self._margin_names = \
             self._constraint_tables(names, self.constraints)
         self._t = 0
+        self._command = np.zeros(3)
         self._read_state()
+        self._lift_band = (self._values[2], self._values[2] + LIFT_BAND)
+        if not math.isfinite(sum(self._values)):
+            raise RuntimeError("the scene is not finite right after reset: the model or the placement is broken")
         terms = self._margins()
         return self._observe(), self._info(terms, "running", None)
 
     # ------------------------------------------------------------------ dynamics
     def step(self, action):
-        velocity = np.minimum(np.asarray(action, dtype=np.float64).reshape(3), 1.0)
-        # in place, and minimum/maximum rather than np.clip: the same result at a third of the call overhead
-        np.maximum(velocity, -1.0, out=velocity)
-        velocity *= self._speed_scale
+        request = np.asarray(action, dtype=np.float64).reshape(3)
+        if not (math.isfinite(request[0]) and math.isfinite(request[1]) and math.isfinite(request[2])):
+            raise ValueError(f"action must be finite, got {request.tolist()}: a NaN action usually means the "
+                             "policy's weights or its observation hold NaN")
+        norm = math.sqrt(float(request @ request))
+        if norm > 1.0:
+            request = request / norm  # limited by norm, not per axis: no faster diagonals
+        request = request * self.max_speed
+        z, (z_low, z_high) = self._values[2], self._lift_band
+        # the lift band; coming down, the box lands softly (an exponential approach over ~4 steps, not a drop)
+        request[2] = min(max(request[2], (z_low - z) / (4 * CONTROL_DT)), (z_high - z) / CONTROL_DT)
+        command = limit_ee_velocity(request, self._command, CONTROL_DT, self.max_speed, self.max_accel)
+        self._command = command
         m, d = self.model, self.data
-        self.hand.command_velocity(d, self.binding, velocity)
+        self.robot.command_velocity(m, d, self.binding, command, CONTROL_DT)
         time_before = d.time
-        mujoco.mj_step(m, d, nstep=self.n_substeps)
+        if self._substep_hook is None:
+            mujoco.mj_step(m, d, nstep=self.n_substeps)
+        else:  # the same mj_step calls in chunks (bit-identical physics), with the hook watching in between
+            every, hook = self._substep_hook
+            for done in range(every, self.n_substeps + every, every):
+                mujoco.mj_step(m, d, nstep=min(every, self.n_substeps - done + every))
+                hook(self)
         self._t += 1
         # On a bad qpos/qvel/qacc MuJoCo resets the whole MjData (time back to 0) and carries on: time that
         # did not advance by the full control step is the cheap trace of it; NaNs that slipped through into
@@ -178,7 +213,7 @@ class SlideOutEnv(gym.Env):
             self._flat, self._values = self._last_good
             self._state = None
             return self._observe(), 0.0, True, False, self._info(self._last_terms, "unstable", None)
-        terms = self._margins()
+        terms = self._margins(substeps=True)
         l, g = terms["l"], terms["g"]
         event, culprit = "running", None
         terminated = truncated = False
@@ -199,8 +234,8 @@ class SlideOutEnv(gym.Env):
         The ``SceneState`` view of it is built only when someone asks (``scene_state``).
         """
         g = self.gather
-        flat = np.concatenate((g.site_xpos[g.ee_site], g.qvel[g.qvel_index], g.xpos[g.body_rows].ravel(),
-                               self._onehot_flat))
+        flat = np.concatenate((g.site_xpos[g.ee_site], g.sensordata[g.box_vel], g.qvel[g.qvel_index],
+                               g.xpos[g.body_rows].ravel(), self._onehot_flat))
         values = flat.tolist()
         self._flat, self._values, self._state = flat, values, None
         if math.isfinite(sum(values)):
@@ -222,6 +257,19 @@ class SlideOutEnv(gym.Env):
                 top_pos=flat[g.top_pos], top_vel=flat[6:9], obj_pos=flat[g.obj_pos].reshape(-1, 3),
                 obj_vel=flat[g.obj_vel].reshape(-1, 3))
         return self._state
+
+    def watch_substeps(self, every: int | None, hook=None) -> None:
+        """Call ``hook(env)`` every ``every`` physics substeps inside each step (``None`` switches it off).
+
+        For videos between control steps (every 5 substeps = 100 frames per simulated second) and for
+        tests that check limits at physics resolution; the physics is bit-identical either way.
+        """
+        if every is None:
+            self._substep_hook = None
+            return
+        if not isinstance(every, int) or not 1 <= every <= self.n_substeps or self.n_substeps % every:
+            raise ValueError(f"every must divide the {self.n_substeps} substeps of a control step, got {every!r}")
+        self._substep_hook = (every, hook)
 
     # ------------------------------------------------------------------ margins
     def object_distances(self, object_ids=None) -> np.ndarray:
@@ -255,8 +303,12 @@ class SlideOutEnv(gym.Env):
             out.append(best)
         return out
 
-    def _margins(self, state: SceneState | None = None) -> dict[str, Any]:
-        """Every margin term of the last state read (``state``, if given, must be that state)."""
+    def _margins(self, state: SceneState | None = None, substeps: bool = False) -> dict[str, Any]:
+        """Every margin term of the last state read (``state``, if given, must be that state).
+
+        With ``substeps``, each g term is also the minimum over the physics substeps of the control step
+        just taken, read from the judge sensors' history (``scene/builder.py``).
+        """
         if state is not None and state is not self._state:
             raise ValueError("_margins works on the state of the last read; pass env.scene_state() or nothing")
         th, geo, v, gather = self.thresholds, self.geometry, self._values, self.gather
@@ -270,7 +322,17 @@ class SlideOutEnv(gym.Env):
             "g_dyn": M.margin_top_box(top, self._top_start, float(gather.xmat[gather.top_up_z]),
                                       th.top_box_displacement, th.top_box_min_up),
             "g_oob": M.margin_in_workspace(bottom, geo.table_half_extents, geo.workspace_inset),
+            "l3": M.margin_at_rest(math.sqrt(v[3] * v[3] + v[4] * v[4] + v[5] * v[5]), th.place_speed),
         }
+        history = None
+        if substeps:
+            gather = self.gather
+            history = gather.history[gather.history_index]  # (substeps, columns): one gather
+            terms["g_dyn"] = min(terms["g_dyn"], M.worst_top_box(
+                history[:, gather.h_top_pos], self._top_start, history[:, gather.h_top_up_z],
+                th.top_box_displacement, th.top_box_min_up))
+            terms["g_oob"] = min(terms["g_oob"], M.worst_in_workspace(
+                history[:, gather.h_box_xy], geo.table_half_extents, geo.workspace_inset))
         n = len(self.names)
         object_terms = [math.inf] * n
         distances = [DISTANCE_CAP] * n
@@ -288,14 +350,32 @@ class SlideOutEnv(gym.Env):
                 else:
                     term = dist - th.collision  # = margin_no_contact
                 object_terms[i] = term
-                if term < g_objects:
-                    g_objects = term
+            if history is not None:
+                found = history[:, gather.h_found] > 0.5  # (substeps, N): a contact within d4 at that substep
+                if found.any():
+                    for i in checked:
+                        hit = found[:, i]
+                        if hit.any():
+                            object_terms[i] = min(object_terms[i], self._substep_contact_margin(history, hit, i))
+            g_objects = min(object_terms[i] for i in checked)
         terms["objects"] = np.array(object_terms) if n else _EMPTY
         terms["distances"] = np.array(distances) if n else _EMPTY
-        terms["l"] = min(terms["l1"], terms["l2"])
+        terms["l"] = min(terms["l1"], terms["l2"], terms["l3"])
         terms["g"] = float(min(terms["g_dyn"], terms["g_oob"], g_objects))
         self._last_terms = terms
         return terms
+
+    def _substep_contact_margin(self, history: np.ndarray, hit: np.ndarray, i: int) -> float:
+        """Worst g of object i over the substeps where the robot or the held box came within d4 of it."""
+        th, gather = self.thresholds, self.gather
+        distance = history[hit, gather.h_dist[i]]
+        if not self._soft_flags[i]:
+            return float(np.min(distance)) - th.collision  # = margin_no_contact
+        # the held box's velocity stands for the robot's: it is the fastest-moving part near the table
+        relative = history[hit][:, gather.h_box_vel] - history[hit][:, gather.h_obj_vel[i]]
+        speed = np.sqrt(np.einsum("ij,ij->i", relative, relative))
+        return min(M.margin_soft_contact(float(dd), float(sp), th.collision, th.relative_speed)
+                   for dd, sp in zip(distance, speed))
 
     def _failure_cause(self, terms) -> tuple[str, int | None]:
         candidates = {"failure:dyn": terms["g_dyn"], "failure:oob": terms["g_oob"]}
@@ -327,7 +407,8 @@ class SlideOutEnv(gym.Env):
         return obs
 
     def _info(self, terms, event: str, culprit: int | None) -> dict:
-        margins = {"l1": terms["l1"], "l2": terms["l2"], "g_dyn": terms["g_dyn"], "g_oob": terms["g_oob"]}
+        margins = {"l1": terms["l1"], "l2": terms["l2"], "l3": terms["l3"], "g_dyn": terms["g_dyn"],
+                   "g_oob": terms["g_oob"]}
         objects = terms["objects"]
         for i, key in self._margin_names.items():
             margins[key] = float(objects[i])
@@ -386,15 +467,21 @@ def _evict_oldest(cache: dict) -> None:
 class _StateGather:
     """Index arrays and MjData views, built once per compiled scene, that read the state in two gathers.
 
-    The flat state is ``[ee_pos(3), hand_vel(3), top_vel(3), obj_vel(3N), bottom_pos(3), top_pos(3),
-    obj_pos(3N), constraint one-hots(3N)]`` (the held box moves with the hand, so the hand's velocity is the
-    box's); an observation is one gather from it.
+    The flat state is ``[ee_pos(3), box_vel(3), top_vel(3), obj_vel(3N), bottom_pos(3), top_pos(3),
+    obj_pos(3N), constraint one-hots(3N)]`` (the held box is welded to the hand: its velocity is the
+    end-effector's); an observation is one gather from it.
+
+    The judge sensors' history is read as one (substeps, columns) gather through ``history_index``; the
+    ``h_*`` fields name its columns.
     """
 
     xpos: np.ndarray  # views into this scene's MjData (its buffers never move)
     qvel: np.ndarray
     site_xpos: np.ndarray
     xmat: np.ndarray  # flat
+    sensordata: np.ndarray
+    history: np.ndarray
+    box_vel: slice  # in sensordata: the held box's linear velocity
     ee_site: int
     top_up_z: int  # index in ``xmat`` of the top box's up-axis z component
     body_rows: np.ndarray
@@ -409,9 +496,17 @@ class _StateGather:
     robot_sources: np.ndarray  # (18,): flat-state indices of the robot and box part of the observation
     slot_sources: np.ndarray  # (N, 9): flat-state indices of each object's position, velocity and one-hot
     index_sources: np.ndarray  # observation_sources(index_order), the common case, precomputed
+    history_index: np.ndarray  # (substeps, columns) indices into MjData.history
+    h_found: np.ndarray  # (N,) columns: contact found between the robot's subtree and object i
+    h_dist: np.ndarray  # (N,) columns: that contact's distance
+    h_obj_vel: np.ndarray  # (N, 3) columns: object i's linear velocity
+    h_box_vel: np.ndarray  # (3,) the held box's linear velocity
+    h_box_xy: np.ndarray  # (2,) the held box's position
+    h_top_pos: np.ndarray  # (2,) the top box's horizontal position
+    h_top_up_z: int  # the z component of the top box's up axis
 
     @classmethod
-    def build(cls, index: SceneIndex, binding, data: mujoco.MjData) -> "_StateGather":
+    def build(cls, model: mujoco.MjModel, index: SceneIndex, binding, data: mujoco.MjData) -> "_StateGather":
         n = len(index.object_bodies)
         p0 = 9 + 3 * n  # start of the positions block
         h0 = p0 + 6 + 3 * n  # start of the one-hots
@@ -421,17 +516,45 @@ class _StateGather:
         slots = np.array([np.r_[p0 + 6 + 3 * i:p0 + 9 + 3 * i, 9 + 3 * i:12 + 3 * i, h0 + 3 * i:h0 + 3 * i + 3]
                           for i in range(n)], dtype=np.intp).reshape(n, SLOT_DIM)
         manipulated = [int(g) for g in index.manipulated_geoms]
+        columns: list[np.ndarray] = []  # per column, its (substeps,) indices into MjData.history
+
+        def history_columns(sensor_name: str) -> list[int]:
+            sensor = model.sensor(sensor_name)
+            samples, dim = int(model.sensor_history[sensor.id, 0]), int(sensor.dim[0])
+            # layout per sensor: 2 header values, the sample times, then the samples (dim values each)
+            values = int(model.sensor_historyadr[sensor.id]) + 2 + samples
+            first = len(columns)
+            for c in range(dim):
+                columns.append(values + c + dim * np.arange(samples))
+            return list(range(first, first + dim))
+
+        found, dist, object_vel = [], [], []
+        for i in range(n):
+            f, dd = history_columns(f"judge_contact{i}")
+            found.append(f)
+            dist.append(dd)
+            object_vel.append(history_columns(f"judge_vel{i}"))
+        box_vel = history_columns("judge_box_vel")
+        box_xy = history_columns("judge_box_pos")[:2]
+        top_xy = history_columns("judge_top_pos")[:2]
+        top_up_z = history_columns("judge_top_up")[2]
+        box_vel_adr = int(model.sensor_adr[model.sensor("judge_box_vel").id])
         return cls(
             xpos=data.xpos, qvel=data.qvel, site_xpos=data.site_xpos, xmat=data.xmat.reshape(-1),
+            sensordata=data.sensordata, history=data.history, box_vel=slice(box_vel_adr, box_vel_adr + 3),
             ee_site=int(binding.ee_site), top_up_z=9 * int(index.top_box_body) + 8,
             body_rows=np.r_[index.bottom_box_body, index.top_box_body, index.object_bodies].astype(np.intp),
-            qvel_index=np.r_[binding.qvel_adr, np.arange(index.top_box_qvel, index.top_box_qvel + 3),
+            qvel_index=np.r_[np.arange(index.top_box_qvel, index.top_box_qvel + 3),
                              index.object_qvel_flat].astype(np.intp),
             bottom_pos=bottom, top_pos=top, obj_pos=obj_pos, obj_vel=obj_vel,
             reach=[float(r) + _MANIPULATED_REACH for r in index.object_reach],
             geom_pairs=[[(g1, int(g2)) for g1 in manipulated for g2 in geoms] for geoms in index.object_geoms],
             index_order=np.arange(n), robot_sources=robot, slot_sources=slots,
-            index_sources=np.concatenate((robot, slots.ravel())))
+            index_sources=np.concatenate((robot, slots.ravel())),
+            history_index=np.stack(columns, axis=1).astype(np.intp),
+            h_found=np.array(found, dtype=np.intp), h_dist=np.array(dist, dtype=np.intp),
+            h_obj_vel=np.array(object_vel, dtype=np.intp).reshape(n, 3), h_box_vel=np.array(box_vel, dtype=np.intp),
+            h_box_xy=np.array(box_xy, dtype=np.intp), h_top_pos=np.array(top_xy, dtype=np.intp), h_top_up_z=top_up_z)
 
     def observation_sources(self, ids: np.ndarray) -> np.ndarray:
         if ids is self.index_order:

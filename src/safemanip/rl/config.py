@@ -24,6 +24,9 @@ class TrainConfig:
     uniformly from {no_contact, soft_contact, any_contact} every episode."""
     near_path_fraction: float = 0.5
     """Share of the clutter placed near the path to the goal."""
+    embodiment: str = "panda"
+    """Robot: 'panda' (the 7-DoF Franka Panda, the paper's) or 'hand' (the idealised floating-hand ablation).
+    Recorded in the policy's metadata; a policy is refused in another embodiment."""
     slot_order: str = "nearest"
     """Order of the object slots in the observation: 'nearest' (by distance to the held box, re-sorted every
     step -- the order the deployment reducer uses) or 'index' (the scene's fixed object order)."""
@@ -100,6 +103,8 @@ class TrainConfig:
             problems.append(f"learning_starts ({self.learning_starts}) must be >= batch_size ({self.batch_size})")
         if self.env_steps_per_update <= 0 or self.n_collectors < 1 or self.envs_per_collector < 1:
             problems.append("env_steps_per_update > 0, n_collectors >= 1 and envs_per_collector >= 1 are required")
+        if self.embodiment not in ("panda", "hand"):
+            problems.append(f"embodiment must be 'panda' or 'hand', got {self.embodiment!r}")
         if self.slot_order not in ("nearest", "index"):
             problems.append(f"slot_order must be 'nearest' or 'index', got {self.slot_order!r}")
         if not self.hidden or min(self.hidden) < 1:
@@ -120,7 +125,7 @@ class TrainConfig:
             return {"factory": self.env_factory, **self.extra_env_kwargs}
         return {"n_objects": self.n_objects, "constraints": "random" if self.constraints == "all" else "conservative",
                 "near_path_fraction": self.near_path_fraction, "max_episode_steps": self.max_episode_steps,
-                "slot_order": self.slot_order}
+                "slot_order": self.slot_order, "embodiment": self.embodiment}
 
     def gamma_at(self, progress: float) -> float:
         if self.gamma_start is None:

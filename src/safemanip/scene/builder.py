@@ -1,7 +1,14 @@
-"""Compose the scene with ``mujoco.MjSpec``: arena (table, goal, cameras, light) + robot + objects.
+"""Compose the scene with ``mujoco.MjSpec``: arena (table, goal, cameras, light) + robot + objects + the
+sensors the judge reads.
 
-The compiled model depends only on *which* objects are present; their poses are set per episode
-through qpos, so ``build_model`` results are cached by object names.
+The compiled model depends only on *which* objects are present and on the embodiment; poses are set per
+episode through qpos, so ``build_model`` results are cached by (object names, embodiment).
+
+Safety is judged at every physics substep without Python between substeps: robot and held-box geoms
+report contacts within ``gap`` = d4 (no force: MuJoCo detects at margin + gap and pushes only within
+margin = 0), and sensors with a 25-sample history (one sample per substep) record, per clutter object,
+the nearest such contact and the object's velocity, plus the held box's position and velocity and the
+top box's position and up-axis. The env reads the whole history once per control step.
 """
 
 from __future__ import annotations
@@ -14,10 +21,12 @@ import numpy as np
 
 from safemanip.scene.catalog import CatalogObject, load_catalog
 from safemanip.scene.config import GEOMETRY, TaskGeometry
-from safemanip.scene.embodiment import COLLIDE_OBJECTS, COLLIDE_TABLE, CartesianHand
+from safemanip.scene.embodiment import Embodiment, make_embodiment
+from safemanip.scene.panda import COLLIDE_OBJECTS, COLLIDE_ROBOT, COLLIDE_TABLE
 
 TIMESTEP = 0.002
 CONTROL_DT = 0.05  # 20 Hz control
+SUBSTEPS = int(round(CONTROL_DT / TIMESTEP))
 BOX_FRICTION = 0.3
 TABLE_FRICTION = 0.3
 WHITE_BOX = (0.95, 0.95, 0.92, 1.0)
@@ -56,7 +65,7 @@ def _add_arena(spec: mujoco.MjSpec, geo: TaskGeometry) -> None:
     # table friction wins over every object's thanks to its higher priority
     world.add_geom(name="table", type=mujoco.mjtGeom.mjGEOM_BOX, size=[tx, ty, 0.025], pos=[0, 0, -0.025],
                    rgba=[0.55, 0.42, 0.30, 1], friction=[TABLE_FRICTION, 0.005, 0.0001], priority=1,
-                   contype=COLLIDE_TABLE, conaffinity=COLLIDE_TABLE)
+                   contype=COLLIDE_TABLE, conaffinity=COLLIDE_TABLE | COLLIDE_ROBOT)
     for sx in (-1, 1):
         for sy in (-1, 1):
             world.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.025, 0.025, 0.385],
@@ -65,7 +74,8 @@ def _add_arena(spec: mujoco.MjSpec, geo: TaskGeometry) -> None:
     gx, gy = geo.goal_xy
     world.add_geom(name="goal", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[geo.goal_radius, 0.0008],
                    pos=[gx, gy, 0.0008], rgba=[0.1, 0.8, 0.2, 0.45], contype=0, conaffinity=0)
-    world.add_camera(name="front", pos=[0.0, -1.15, 0.95], xyaxes=[1, 0, 0, 0, 0.637, 0.771], fovy=58)
+    # high behind the robot, looking down at the table: the arm hides little of the clutter
+    world.add_camera(name="front", pos=[0.0, -1.0, 1.8], xyaxes=[1, 0, 0, 0, 0.857, 0.514], fovy=44)
     world.add_camera(name="top", pos=[0.0, 0.0, 1.45], xyaxes=[1, 0, 0, 0, 1, 0], fovy=50)
 
 
@@ -76,7 +86,7 @@ def _add_top_box(spec: mujoco.MjSpec, geo: TaskGeometry) -> None:
     top.add_freejoint(name="box_top")
     top.add_geom(name="box_top", type=mujoco.mjtGeom.mjGEOM_BOX, size=[hx, hy, hz], mass=geo.box_mass,
                  rgba=BLUE_BOX, friction=[BOX_FRICTION, 0.005, 0.0001],
-                 contype=COLLIDE_TABLE | COLLIDE_OBJECTS, conaffinity=COLLIDE_TABLE | COLLIDE_OBJECTS)
+                 contype=COLLIDE_TABLE | COLLIDE_OBJECTS, conaffinity=COLLIDE_TABLE | COLLIDE_OBJECTS | COLLIDE_ROBOT)
 
 
 def _add_object(spec: mujoco.MjSpec, index: int, obj: CatalogObject) -> None:
@@ -91,7 +101,7 @@ def _add_part(body, name, part, obj: CatalogObject, total_volume: float):
     geom = body.add_geom(name=name, type=_GEOM_TYPES[part.type], size=list(part.size) + [0] * (3 - len(part.size)),
                          pos=part.pos, mass=obj.mass * _part_volume(part) / total_volume, rgba=obj.rgba,
                          friction=[0.5, 0.005, 0.0001],
-                         contype=COLLIDE_TABLE | COLLIDE_OBJECTS, conaffinity=COLLIDE_TABLE | COLLIDE_OBJECTS)
+                         contype=COLLIDE_TABLE | COLLIDE_OBJECTS, conaffinity=COLLIDE_TABLE | COLLIDE_OBJECTS | COLLIDE_ROBOT)
     if any(part.euler):
         quat = np.zeros(4)
         mujoco.mju_euler2Quat(quat, np.asarray(part.euler, dtype=float), "xyz")
@@ -99,15 +109,36 @@ def _add_part(body, name, part, obj: CatalogObject, total_volume: float):
     return geom
 
 
-def build_spec(names: tuple[str, ...], geometry: TaskGeometry = GEOMETRY, sleep: bool = True) -> mujoco.MjSpec:
+def _add_judge_sensors(spec: mujoco.MjSpec, embodiment: Embodiment, n_objects: int) -> None:
+    """Sensors with one history sample per substep (layout read by ``SceneIndex.history_index``)."""
+    def sensor(name, kind, objtype, objname, **extra):
+        s = spec.add_sensor(name=name, type=kind, objtype=objtype, objname=objname, nsample=SUBSTEPS, **extra)
+        return s
+
+    body, xbody = mujoco.mjtObj.mjOBJ_BODY, mujoco.mjtObj.mjOBJ_XBODY
+    for i in range(n_objects):
+        # nearest contact between anything in the robot's subtree (links, hand, held box) and object i
+        sensor(f"judge_contact{i}", mujoco.mjtSensor.mjSENS_CONTACT, xbody, embodiment.root_body_name,
+               reftype=body, refname=f"obj{i}", intprm=[1 | 8, 1, 1])  # data: found|dist; reduce: mindist; num 1
+        sensor(f"judge_vel{i}", mujoco.mjtSensor.mjSENS_FRAMELINVEL, xbody, f"obj{i}")
+    sensor("judge_box_vel", mujoco.mjtSensor.mjSENS_FRAMELINVEL, xbody, "box_bottom")
+    sensor("judge_box_pos", mujoco.mjtSensor.mjSENS_FRAMEPOS, xbody, "box_bottom")
+    sensor("judge_top_pos", mujoco.mjtSensor.mjSENS_FRAMEPOS, xbody, "box_top")
+    sensor("judge_top_up", mujoco.mjtSensor.mjSENS_FRAMEZAXIS, xbody, "box_top")
+
+
+def build_spec(names: tuple[str, ...], embodiment: Embodiment | None = None, geometry: TaskGeometry = GEOMETRY,
+               sleep: bool = True) -> mujoco.MjSpec:
     catalog = load_catalog()
+    embodiment = embodiment if embodiment is not None else make_embodiment("panda")
     spec = mujoco.MjSpec()
     spec.modelname = "slide_out"
     _add_arena(spec, geometry)
-    CartesianHand().attach(spec, geometry, WHITE_BOX, BOX_FRICTION)
+    embodiment.attach(spec, geometry, WHITE_BOX, BOX_FRICTION, CONTROL_DT)
     _add_top_box(spec, geometry)
     for i, name in enumerate(names):
         _add_object(spec, i, catalog[name])
+    _add_judge_sensors(spec, embodiment, len(names))
     if sleep:
         # resting clutter islands go to sleep and cost nothing until something touches them
         spec.option.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)
@@ -115,9 +146,14 @@ def build_spec(names: tuple[str, ...], geometry: TaskGeometry = GEOMETRY, sleep:
 
 
 @lru_cache(maxsize=64)
-def build_model(names: tuple[str, ...], sleep: bool = True) -> mujoco.MjModel:
-    """Compiled model for this set of clutter objects (cached; treat it as read-only)."""
-    return build_spec(names, sleep=sleep).compile()
+def build_model(names: tuple[str, ...], sleep: bool = True, embodiment: str = "panda", visual: bool = False,
+                gap: float = 0.01) -> mujoco.MjModel:
+    """Compiled model for this set of clutter objects and embodiment (cached; treat it as read-only).
+
+    ``visual``: include the robot's visual meshes (for rendering; compiling them costs ~70 ms, the rest
+    ~5 ms). ``gap``: how far out robot and held-box contacts are reported (the collision threshold d4).
+    """
+    return build_spec(names, make_embodiment(embodiment, visual=visual, gap=gap), sleep=sleep).compile()
 
 
 @dataclass
@@ -128,7 +164,7 @@ class SceneIndex:
     top_box_qpos: int
     top_box_qvel: int
     bottom_box_body: int
-    manipulated_geoms: np.ndarray  # the bottom box and the hand's palm
+    manipulated_geoms: np.ndarray  # geoms whose exact distance to the clutter is measured (held box, hand)
     object_bodies: np.ndarray  # (N,)
     object_qpos: np.ndarray  # (N,) start of each free joint's qpos
     object_qvel: np.ndarray
@@ -138,7 +174,7 @@ class SceneIndex:
     object_reach: np.ndarray  # (N,) radius around the body origin that contains all of the object's geoms
 
     @classmethod
-    def from_model(cls, model: mujoco.MjModel, n_objects: int) -> "SceneIndex":
+    def from_model(cls, model: mujoco.MjModel, n_objects: int, embodiment: Embodiment) -> "SceneIndex":
         bodies = np.array([model.body(f"obj{i}").id for i in range(n_objects)], dtype=int)
         geoms = [np.flatnonzero(model.geom_bodyid == b) for b in bodies]
         top = model.joint("box_top")
@@ -147,7 +183,7 @@ class SceneIndex:
             top_box_qpos=int(top.qposadr[0]),
             top_box_qvel=int(top.dofadr[0]),
             bottom_box_body=model.body("box_bottom").id,
-            manipulated_geoms=np.array([model.geom("box_bottom").id, model.geom("hand_palm").id]),
+            manipulated_geoms=np.array([model.geom(g).id for g in embodiment.distance_geom_names]),
             object_bodies=bodies,
             object_qpos=np.array([model.joint(f"obj{i}").qposadr[0] for i in range(n_objects)], dtype=int),
             object_qvel=np.array([model.joint(f"obj{i}").dofadr[0] for i in range(n_objects)], dtype=int),

@@ -1,7 +1,8 @@
 """Scene geometry and the small, validated scene config.
 
 World frame: origin at the centre of the table top, x to the right (towards the goal), y away
-from the robot, z up. The robot stands on the -y side.
+from the robot, z up. The robot stands on the -y side, facing +y; the pull and the slide go to the
+right, across the robot's front, where a Panda's end-effector is fastest (its first joint swings it).
 """
 
 from __future__ import annotations
@@ -21,24 +22,31 @@ class TaskGeometry:
 
     table_half_extents: tuple[float, float] = (0.80, 0.45)
     """Half length (x) and half depth (y) of the table top."""
-    box_half_extents: tuple[float, float, float] = (0.135, 0.095, 0.035)
-    """Cereal box lying flat: 0.27 x 0.19 x 0.07 m."""
+    box_half_extents: tuple[float, float, float] = (0.095, 0.135, 0.035)
+    """Cereal box lying flat, its long side along y: 0.19 x 0.27 x 0.07 m."""
     box_mass: float = 0.35
-    stack_xy: tuple[float, float] = (-0.45, 0.07)
+    stack_xy: tuple[float, float] = (-0.40, 0.0)
     """Centre of the top box."""
-    bottom_offset_y: float = -0.04
-    """The bottom box sticks out this far towards the robot (-y) from under the top box."""
-    goal_xy: tuple[float, float] = (0.50, -0.15)
-    """Centre of the goal region near the right end of the table."""
+    bottom_offset_x: float = 0.07
+    """The bottom box sticks out this far to the right (+x, the pull direction) from under the top box; the
+    fingers rest on that lip."""
+    goal_xy: tuple[float, float] = (0.45, -0.15)
+    """Centre of the goal region, to the right of the stack."""
     goal_radius: float = 0.08
-    path_start_xy: tuple[float, float] = (-0.45, -0.16)
+    path_start_xy: tuple[float, float] = (-0.15, 0.0)
     """Where the bottom box is once it has been pulled out; clutter 'near the path' lies between here and the goal."""
     workspace_inset: float = 0.03
     """The manipulated box's centre must stay this far inside the table edge (else failure:oob)."""
 
     @property
     def bottom_xy(self) -> tuple[float, float]:
-        return (self.stack_xy[0], self.stack_xy[1] + self.bottom_offset_y)
+        return (self.stack_xy[0] + self.bottom_offset_x, self.stack_xy[1])
+
+    @property
+    def grasp_xy(self) -> tuple[float, float]:
+        """Where the fingertips rest: on the lip, 1.5 cm in from the bottom box's right edge."""
+        bx, by = self.bottom_xy
+        return (bx + self.box_half_extents[0] - 0.015, by)
 
 
 GEOMETRY = TaskGeometry()

@@ -1,23 +1,49 @@
-"""Robot embodiments. The policy acts on end-effector displacements, so any embodiment that can
-track a Cartesian end-effector target can stand behind the same observation and action spaces.
+"""Robot embodiments: what stands between a commanded end-effector velocity and the physics.
 
-``CartesianHand`` models the Franka Panda hand as a gravity-compensated body on three world-aligned
-slide joints, each driven by a position actuator (PD). The grasped (bottom) cereal box is rigidly
-attached to the hand, i.e. a perfect grasp. A 7-DoF Panda with operational-space control can
-replace it by implementing the same three methods.
+The policy acts on end-effector displacements, so every embodiment tracks a Cartesian velocity behind
+the same observation and action spaces. Two exist, picked by name (``EMBODIMENTS``):
+
+* ``panda`` (default, ``scene/panda.py``): the 7-DoF Franka Panda from gymnasium-robotics' model, with
+  damped-least-squares differential IK within the Panda's joint limits.
+* ``hand``: an idealised ablation, the Panda hand as a gravity-compensated body on three world-aligned
+  slide joints. The env applies the same Cartesian speed and acceleration limits to both.
+
+In both, the grasped (bottom) cereal box is a child body of the hand: a weld, i.e. a perfect grasp.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import mujoco
 import numpy as np
 
 from safemanip.scene.config import TaskGeometry
+from safemanip.scene.panda import COLLIDE_OBJECTS, COLLIDE_ROBOT, COLLIDE_TABLE, PandaArm
 
-COLLIDE_TABLE = 1  # contype/conaffinity bit shared with the table
-COLLIDE_OBJECTS = 2  # bit shared by everything that is not the table
+
+class Embodiment(Protocol):
+    """What the scene builder and the env need of a robot.
+
+    ``attach`` builds the robot and the held box (a body named ``box_bottom``) into the scene's spec;
+    ``bind`` resolves ids once per compiled model; ``reset`` puts it at its home configuration;
+    ``command_velocity`` makes the end-effector track a world-frame velocity over the next control step.
+    Everything in the subtree of ``root_body_name`` is "manipulated": it counts in g_hard and g_soft.
+    """
+
+    name: str
+    root_body_name: str
+    ee_site_name: str
+    distance_geom_names: tuple[str, ...]
+    """Geoms whose exact distance to the clutter shapes g while nothing is in contact (the held box and the
+    hand); contacts of every other robot geom are caught by the per-substep contact check."""
+    cache_key: tuple
+
+    def attach(self, spec: mujoco.MjSpec, geo: TaskGeometry, box_rgba, box_friction: float, dt: float) -> None: ...
+    def bind(self, model: mujoco.MjModel): ...
+    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, binding) -> None: ...
+    def command_velocity(self, model, data, binding, velocity: np.ndarray, dt: float) -> None: ...
 
 
 @dataclass
@@ -49,7 +75,12 @@ def _as_slice(ids: np.ndarray):
 
 
 class CartesianHand:
-    name = "cartesian-hand"
+    """The idealised ablation: a Panda hand on three world-aligned slide joints (see the module docstring)."""
+
+    name = "hand"
+    root_body_name = "hand"
+    ee_site_name = "ee"
+    distance_geom_names = ("box_bottom", "hand_palm")
     kp = 3000.0
     """Position gain [N/m] (critically damped with the velocity actuators' kv)."""
     mass = 0.73
@@ -57,13 +88,22 @@ class CartesianHand:
     lift_range = (0.0, 0.02)
     """How far the box may be lifted above resting on the table [m]: sliding, not carrying over clutter."""
 
-    def attach(self, spec: mujoco.MjSpec, geo: TaskGeometry, box_rgba, box_friction: float) -> None:
+    def __init__(self, visual: bool = True, gap: float = 0.0):
+        self.visual = visual  # the hand has no meshes: nothing to drop
+        self.gap = gap
+
+    @property
+    def cache_key(self) -> tuple:
+        return (self.name, self.gap)
+
+    def attach(self, spec: mujoco.MjSpec, geo: TaskGeometry, box_rgba, box_friction: float, dt: float) -> None:
         hx, hy, hz = geo.box_half_extents
         bx, by = geo.bottom_xy
-        grasp = np.array([bx, by - hy, hz])  # middle of the near edge of the bottom box
+        gx, gy = geo.grasp_xy
+        grasp = np.array([gx, gy, hz])  # on the lip, where the Panda's fingers rest
         hand = spec.worldbody.add_body(name="hand", pos=grasp, gravcomp=1.0)
         tx, ty = geo.table_half_extents
-        ranges = {"x": (-tx - bx, tx - bx), "y": (-ty - by + hy, ty - by), "z": self.lift_range}
+        ranges = {"x": (-tx - gx, tx - gx), "y": (-ty - gy, ty - gy), "z": self.lift_range}
         for axis, vec in zip("xyz", np.eye(3)):
             hand.add_joint(name=f"hand_{axis}", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=vec,
                            range=ranges[axis], limited=mujoco.mjtLimited.mjLIMITED_TRUE, armature=0.01)
@@ -79,17 +119,17 @@ class CartesianHand:
             vel = spec.add_actuator(name=f"hand_v{axis}", target=f"hand_{axis}", trntype=mujoco.mjtTrn.mjTRN_JOINT)
             vel.set_to_velocity(kv=kv)
         # palm above the box edge and two fingers pinching it; palm collides with clutter, not the table
-        hand.add_geom(name="hand_palm", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.10, 0.03, 0.025],
-                      pos=[0, -0.03, hz + 0.045], mass=self.mass, rgba=[0.9, 0.9, 0.9, 1],
-                      contype=COLLIDE_OBJECTS, conaffinity=COLLIDE_OBJECTS)
+        hand.add_geom(name="hand_palm", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.03, 0.10, 0.025],
+                      pos=[0, 0, hz + 0.09], mass=self.mass, rgba=[0.9, 0.9, 0.9, 1],
+                      contype=COLLIDE_ROBOT, conaffinity=0, gap=self.gap)
         for side in (-1, 1):
             hand.add_geom(name=f"hand_finger_{'lr'[side > 0]}", type=mujoco.mjtGeom.mjGEOM_BOX,
-                          size=[0.01, 0.02, 0.03], pos=[side * 0.04, 0.005, 0.035 + 0.0],
+                          size=[0.02, 0.01, 0.03], pos=[0, side * 0.012, hz + 0.035],
                           rgba=[0.3, 0.3, 0.3, 1], contype=0, conaffinity=0, mass=0)
         hand.add_site(name="ee", pos=[0, 0, 0], size=[0.01, 0, 0])
-        box = hand.add_body(name="box_bottom", pos=[0, hy, 0])
+        box = hand.add_body(name="box_bottom", pos=[bx - gx, by - gy, 0])
         box.add_geom(name="box_bottom", type=mujoco.mjtGeom.mjGEOM_BOX, size=[hx, hy, hz],
-                     mass=geo.box_mass, rgba=box_rgba, friction=[box_friction, 0.005, 0.0001],
+                     mass=geo.box_mass, rgba=box_rgba, friction=[box_friction, 0.005, 0.0001], gap=self.gap,
                      contype=COLLIDE_TABLE | COLLIDE_OBJECTS, conaffinity=COLLIDE_TABLE | COLLIDE_OBJECTS)
 
     def bind(self, model: mujoco.MjModel) -> HandBinding:
@@ -105,8 +145,11 @@ class CartesianHand:
             home=home,
         )
 
+    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, binding: HandBinding) -> None:
+        """Joint zero is the grasp pose: nothing to do after ``mj_resetData``."""
+
     @staticmethod
-    def command_velocity(data, binding: HandBinding, velocity: np.ndarray) -> None:
+    def command_velocity(model, data, binding: HandBinding, velocity: np.ndarray, dt: float) -> None:
         """Move the end-effector at ``velocity`` (m/s) from where it is now, for the coming control step.
 
         The set-point restarts at the measured position each call, so a blocked hand never winds up.
@@ -116,10 +159,12 @@ class CartesianHand:
         ctrl[binding._ctrl] = velocity
         ctrl[binding._ctrl_velocity] = velocity
 
-    @staticmethod
-    def ee_position(data, binding: HandBinding) -> np.ndarray:
-        return data.site_xpos[binding.ee_site]
 
-    @staticmethod
-    def ee_velocity(data, binding: HandBinding) -> np.ndarray:
-        return data.qvel[binding.qvel_adr]  # slide axes are world-aligned
+EMBODIMENTS = {"panda": PandaArm, "hand": CartesianHand}
+"""Embodiments by name: the closed set a config, a flag or a policy's metadata may name."""
+
+
+def make_embodiment(name: str, visual: bool = True, gap: float = 0.0) -> Embodiment:
+    if name not in EMBODIMENTS:
+        raise ValueError(f"unknown embodiment {name!r}: use one of {sorted(EMBODIMENTS)}")
+    return EMBODIMENTS[name](visual=visual, gap=gap)

@@ -33,7 +33,8 @@ def _keep_out_rects(geo: TaskGeometry) -> list[tuple[float, float, float, float]
     hx, hy, _ = geo.box_half_extents
     sx, sy = geo.stack_xy
     bx, by = geo.bottom_xy
-    stack = (sx - hx - 0.04, sx + hx + 0.04, min(by, geo.path_start_xy[1]) - hy - 0.12, sy + hy + 0.04)
+    # the stack, its pull-out lane to the right, and the robot's side of it (where the arm reaches in)
+    stack = (sx - hx - 0.04, max(bx, geo.path_start_xy[0]) + hx + 0.04, sy - hy - 0.12, sy + hy + 0.04)
     return [stack]
 
 
@@ -49,7 +50,8 @@ def _free(x: float, y: float, r: float, placed: list[tuple[float, float, float]]
         if (x - cx) ** 2 + (y - cy) ** 2 < (r + _CLEARANCE) ** 2:
             return False
     gx, gy = geo.goal_xy
-    goal_clear = geo.goal_radius + geo.box_half_extents[1] + 0.01
+    # the box resting at the goal's centre must fit: its half-diagonal, plus a margin
+    goal_clear = math.hypot(geo.box_half_extents[0], geo.box_half_extents[1]) + 0.01
     if math.hypot(x - gx, y - gy) < goal_clear + r:
         return False
     for px, py, pr in placed:
@@ -62,9 +64,10 @@ def sample_placement(radii: np.ndarray, rng: np.random.Generator, near_path_frac
                      geometry: TaskGeometry = GEOMETRY, max_tries: int = 1000) -> Placement:
     """Place objects with footprint ``radii`` without overlap.
 
-    ``round(near_path_fraction * N)`` objects go within a corridor of half-width 0.14 m (0.25 m if crowded) around the
-    segment from the pulled-out box to the goal (so the task needs avoidance); the rest anywhere on
-    the free table. Deterministic for a given generator state.
+    ``round(near_path_fraction * N)`` objects go within a corridor of half-width 0.14 m (0.30 m if crowded) around the
+    segment from the pulled-out box to the goal (so the task needs avoidance), as long as it has room
+    (``near_path`` says which did); the rest anywhere on the free table. Deterministic for a given
+    generator state.
     """
     n = len(radii)
     if n == 0:  # draws nothing, as the general path would
@@ -83,10 +86,12 @@ def sample_placement(radii: np.ndarray, rng: np.random.Generator, near_path_frac
     for rank, i in enumerate(order.tolist()):
         want_near = rank < n_near
         r = float(radii[i])
-        for attempt in range(max_tries):
-            if want_near:  # widen the corridor if it is crowded rather than fail
-                width = 0.14 if attempt < max_tries // 2 else 0.25
-                along, across = rng.uniform(0.2, 0.85), rng.uniform(-width, width)
+        # a near-path object whose corridor is full (even widened) goes anywhere free instead
+        for attempt in range(2 * max_tries if want_near else max_tries):
+            near_try = want_near and attempt < max_tries
+            if near_try:  # widen the corridor if it is crowded
+                width = 0.14 if attempt < max_tries // 4 else 0.30
+                along, across = rng.uniform(0.05, 0.95), rng.uniform(-width, width)
                 x, y = sx + along * dx + across * nx, sy + along * dy + across * ny
             else:
                 x, y = rng.uniform(-tx, tx), rng.uniform(-ty, ty)
@@ -94,10 +99,9 @@ def sample_placement(radii: np.ndarray, rng: np.random.Generator, near_path_frac
                 break
         else:
             raise PlacementError(
-                f"could not place {n} objects without overlap ({len(placed)} fitted"
-                f"{', the near-path corridor is full' if want_near else ''}): reduce n_objects"
-                f" or near_path_fraction, or choose smaller objects")
+                f"could not place {n} objects without overlap ({len(placed)} fitted): reduce n_objects"
+                f" or choose smaller objects")
         placed.append((x, y, r))
         xy_out[i] = x, y
-        near[i] = want_near
+        near[i] = near_try
     return Placement(xy=xy_out, yaw=rng.uniform(-np.pi, np.pi, size=n), near_path=near)

@@ -1,0 +1,75 @@
+"""Cartesian velocity control of a redundant arm: limits and damped-least-squares differential IK.
+
+Pure NumPy functions, called once per 20 Hz control step (never between physics substeps), so the
+arm costs the env a few microseconds of Python per step. Limits are the Franka Panda's published
+ones (Franka's control-parameter documentation): what a real Panda would refuse, the policy cannot
+command either.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+MAX_EE_SPEED = 1.7
+"""Panda Cartesian translational velocity limit [m/s]."""
+MAX_EE_ACCEL = 13.0
+"""Panda Cartesian translational acceleration limit [m/s^2]."""
+
+
+def limit_norm(vector: np.ndarray, max_norm: float) -> np.ndarray:
+    """Scale ``vector`` down (never up) so that its Euclidean norm is at most ``max_norm``; keeps direction."""
+    n = math.sqrt(float(vector @ vector))
+    if n > max_norm:
+        return vector * (max_norm / n)
+    return vector
+
+
+def limit_ee_velocity(requested: np.ndarray, previous: np.ndarray, dt: float,
+                      max_speed: float = MAX_EE_SPEED, max_accel: float = MAX_EE_ACCEL) -> np.ndarray:
+    """The Cartesian velocity to command for the next control step.
+
+    The speed is capped by norm at ``max_speed`` and the change from ``previous`` (the velocity commanded
+    for the step before) by norm at ``max_accel * dt``. The embodiment ramps linearly from the old to the
+    new set-point over the step, so the commanded acceleration never exceeds ``max_accel``.
+    """
+    requested = limit_norm(requested, max_speed)
+    return previous + limit_norm(requested - previous, max_accel * dt)
+
+
+def orientation_error(rotation: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Small-angle rotation vector (world frame) that turns ``rotation`` towards ``target`` (3x3 each)."""
+    return 0.5 * (np.cross(rotation[:, 0], target[:, 0]) + np.cross(rotation[:, 1], target[:, 1])
+                  + np.cross(rotation[:, 2], target[:, 2]))
+
+
+def dls_joint_velocity(jacobian: np.ndarray, twist: np.ndarray, damping: float,
+                       nullspace_velocity: np.ndarray | None = None) -> np.ndarray:
+    """Damped least squares: qdot = J^T (J J^T + damping^2 I)^-1 twist, plus a null-space term.
+
+    ``jacobian`` is (6, n) (translation rows first), ``twist`` (6,). The null-space term (e.g. a pull
+    towards a comfortable posture) is projected so that it does not disturb the end-effector twist.
+    """
+    jjt = jacobian @ jacobian.T
+    jjt[np.diag_indices_from(jjt)] += damping * damping
+    pinv = jacobian.T @ np.linalg.inv(jjt)
+    qdot = pinv @ twist
+    if nullspace_velocity is not None:
+        qdot += nullspace_velocity - pinv @ (jacobian @ nullspace_velocity)
+    return qdot
+
+
+def limit_joint_velocity(qdot: np.ndarray, q: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                         max_speed: np.ndarray, horizon: float) -> np.ndarray:
+    """Keep joints inside [lower, upper] over ``horizon`` seconds and under their speed limits.
+
+    Position limits clip the joints that would leave their range (the end-effector then deviates from
+    the command, as a real arm at its limit does); speed limits scale the whole vector down uniformly,
+    so the direction of motion is kept.
+    """
+    qdot = np.minimum(np.maximum(qdot, (lower - q) / horizon), (upper - q) / horizon)
+    ratio = float(np.max(np.abs(qdot) / max_speed))
+    if ratio > 1.0:
+        qdot = qdot / ratio
+    return qdot

@@ -1,0 +1,316 @@
+"""The Franka Emika Panda, 7-DoF, as the default embodiment.
+
+The model is gymnasium-robotics' Panda (``envs/assets/kitchen_franka/franka_assets``: the kinematic
+chain, collision and visual meshes, 18 kg), located in the installed package with importlib and
+attached into the scene with MjSpec; no model file is copied into this project. At build time we
+correct what that model gets wrong for a torque-controlled Panda:
+
+* joint damping 100 (joints 1-4) / 10 (5-7), which capped joint speeds near 1 rad/s, becomes 1 with an
+  armature of 0.1 (the values of MuJoCo Menagerie's Panda);
+* gravity is compensated, as the Panda's own controller does (``gravcomp`` on every link);
+* joints 6 and 7 get their zeros back where Franka defines them (the link frames carried extra turns of
+  1.57 and 0.785 rad), and every joint range is Franka's published one (joint 4's and 6's differed);
+* the fingers are closed and fixed (the grasp is a weld, see below), so they have no joints.
+
+Control: once per 20 Hz step, damped-least-squares differential IK turns the commanded end-effector
+velocity (and a correction that holds the hand's orientation, and a null-space pull to a comfortable
+posture) into joint velocities within the Panda's joint position and speed limits. Each joint has one
+velocity servo whose set-point is an integrator state: the controller sets its rate so that the set-point
+ramps linearly from the last command to the new one over the step. MuJoCo runs the 25 substeps with no
+Python in between. Torques are limited to the Panda's 87 / 12 Nm.
+
+The grasp: the bottom cereal box is a child body of the hand (a weld), with the closed fingertips
+resting on the 4 cm lip of the box that sticks out to the right from under the top box.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from safemanip.control.diff_ik import dls_joint_velocity, limit_joint_velocity, orientation_error
+from safemanip.scene.config import TaskGeometry
+
+COLLIDE_TABLE = 1  # contype/conaffinity bit of the table and everything that rests on it
+COLLIDE_OBJECTS = 2  # bit shared by the boxes and the clutter
+COLLIDE_ROBOT = 4  # robot links: they hit the table and the clutter, never themselves or the held box
+
+_ASSET_SUBDIR = ("envs", "assets", "kitchen_franka", "franka_assets")
+JOINTS = tuple(f"robot:panda0_joint{i}" for i in range(1, 8))
+FRANKA_JOINT_RANGES = np.array([(-2.8973, 2.8973), (-1.7628, 1.7628), (-2.8973, 2.8973), (-3.0718, -0.0698),
+                                (-2.8973, 2.8973), (-0.0175, 3.7525), (-2.8973, 2.8973)])
+"""Franka's published joint position limits [rad]."""
+FRANKA_JOINT_SPEEDS = np.array([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])
+"""Franka's published joint velocity limits [rad/s]."""
+FRANKA_JOINT_TORQUES = np.array([87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0])
+"""Franka's published joint torque limits [Nm]."""
+READY_POSTURE = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
+"""Franka's 'ready' configuration: the IK's starting guess and the null-space posture."""
+
+BASE_XY = (0.0, -0.60)
+"""Robot base beside the table's near (-y) edge, facing the table (+y)."""
+BASE_Z = 0.0
+"""The base stands on a pedestal level with the table top."""
+SERVO_GAIN = np.array([400.0, 400.0, 400.0, 400.0, 40.0, 40.0, 40.0])
+"""Joint velocity servo gains [Nm s/rad]: time constants of a few ms against link inertia + armature; twice
+these make the torque-limited servos chatter at the 2 ms timestep."""
+LIMIT_MARGIN = 0.05
+"""Joints are kept this far [rad] inside Franka's ranges."""
+SPEED_MARGIN = 0.85
+"""Joint velocities are commanded up to this share of Franka's limits: the servos track with small
+overshoots (inertial coupling between joints, contacts), and the achieved speed must stay within the limit."""
+FINGERTIP_BELOW_SITE = 0.043
+"""The fingertips are this far below gymnasium-robotics' ``end_effector`` site (between the fingers)."""
+
+
+class MissingRobotModel(RuntimeError):
+    """The Panda model cannot be found; the message says how to install it."""
+
+
+def panda_asset_dir() -> Path:
+    """Folder of the Panda model inside the installed gymnasium-robotics package."""
+    spec = importlib.util.find_spec("gymnasium_robotics")
+    if spec is None or spec.origin is None:
+        raise MissingRobotModel("the Panda model comes from the gymnasium-robotics package, which is not installed: "
+                                "run `pip install gymnasium-robotics` (or `pip install -e .` in this repository), "
+                                "or use --embodiment hand")
+    folder = Path(spec.origin).parent.joinpath(*_ASSET_SUBDIR)
+    if not (folder / "chain.xml").is_file():
+        raise MissingRobotModel(f"gymnasium-robotics is installed but has no Panda model at {folder}: "
+                                "install gymnasium-robotics>=1.4 (`pip install -U gymnasium-robotics`)")
+    return folder
+
+
+def load_panda_spec(visual: bool = True, gap: float = 0.0) -> mujoco.MjSpec:
+    """The corrected Panda as an MjSpec (root body ``panda0_link0``; not yet attached to anything).
+
+    ``visual=False`` drops the visual meshes (their mesh processing is ~95 % of a scene's compile time):
+    the collision meshes are then shown instead. Physics is identical either way (visual geoms are
+    massless and collide with nothing). ``gap``: robot geoms report contacts this far out without
+    any force (MuJoCo >= 4 semantics: detection at margin + gap, force only within margin = 0).
+    """
+    folder = panda_asset_dir()
+    wrapper = (f'<mujoco model="panda"><include file="{folder / "assets.xml"}"/>'
+               f'<worldbody><include file="{folder / "chain.xml"}"/></worldbody></mujoco>')
+    spec = mujoco.MjSpec.from_string(wrapper)
+    spec.meshdir = ""
+    spec.nuser_actuator = -1  # the model's actuator user fields are not attached; avoids an attach conflict
+    for mesh in spec.meshes:  # include-relative paths resolve to the asset folder, the meshes live below it
+        mesh.file = str(folder / "meshes" / Path(mesh.file).relative_to(folder))
+    for i, name in enumerate(JOINTS):
+        joint = spec.joint(name)
+        joint.damping = [1.0, 0.0, 0.0]
+        joint.armature = 0.1
+        joint.range = FRANKA_JOINT_RANGES[i]
+    for link in ("panda0_link6", "panda0_link7"):
+        # Franka's frames (a quarter turn about x): the model's extra turns about z (1.57 rad at joint 6,
+        # 0.785 at joint 7) shifted those joints' zeros away from Franka's, so published ranges did not apply
+        body = spec.body(link)
+        body.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
+        body.quat = [math.sqrt(0.5), math.sqrt(0.5), 0.0, 0.0]
+    for body in spec.bodies:
+        if body.name.startswith("panda0_"):
+            body.gravcomp = 1.0
+    for finger in ("panda0_leftfinger", "panda0_rightfinger"):
+        for joint in list(spec.body(finger).joints):
+            spec.delete(joint)
+    for geom in list(spec.geoms):
+        is_visual = geom.contype == 0 and geom.conaffinity == 0
+        if is_visual:
+            if not visual:
+                spec.delete(geom)
+            continue
+        geom.contype, geom.conaffinity = COLLIDE_ROBOT, 0
+        geom.name = geom.meshname or f"{geom.parent.name}_geom{geom.id}"
+        geom.margin, geom.gap = 0.0, gap
+        if not visual:
+            geom.group = 0
+            geom.rgba = [0.92, 0.92, 0.9, 1.0]
+    if not visual:
+        for mesh in list(spec.meshes):
+            if mesh.name.endswith("_viz"):
+                spec.delete(mesh)
+    return spec
+
+
+@dataclass
+class PandaBinding:
+    """Ids and buffers resolved once per compiled model."""
+
+    qpos_adr: np.ndarray  # (7,) arm joints
+    dof_adr: np.ndarray  # (7,)
+    actuator_ids: slice  # the 7 velocity servos (contiguous)
+    act_adr: slice  # their set-points
+    ee_site: int
+    site_body: int
+    box_body: int
+    root_body: int
+    home_qpos: np.ndarray
+    target_rotation: np.ndarray  # (3, 3) hand orientation to hold
+    jacp: np.ndarray
+    jacr: np.ndarray
+    jac6: np.ndarray
+
+
+class PandaArm:
+    """The Franka Panda with its Cartesian velocity controller (see the module docstring)."""
+
+    name = "panda"
+    root_body_name = "panda/panda0_link0"
+    ee_site_name = "panda/end_effector"
+    distance_geom_names = ("box_bottom", "panda/hand_col")
+    ik_damping = 0.02
+    orientation_gain = 0.5
+    """Fraction of the orientation error removed per control step."""
+    posture_gain = 0.5
+    """Null-space pull towards the home posture [1/s] (keeps the elbow where it started)."""
+
+    def __init__(self, visual: bool = True, gap: float = 0.0):
+        self.visual = visual
+        self.gap = gap
+
+    @property
+    def cache_key(self) -> tuple:
+        return (self.name, self.visual, self.gap)
+
+    # ------------------------------------------------------------------ building
+    def attach(self, spec: mujoco.MjSpec, geo: TaskGeometry, box_rgba, box_friction: float, dt: float) -> None:
+        home, site_pose = home_configuration(geo)
+        robot = load_panda_spec(self.visual, self.gap)
+        base = spec.worldbody.add_frame(pos=[BASE_XY[0], BASE_XY[1], BASE_Z],
+                                        quat=[math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)])  # face +y
+        base.attach_body(robot.body("panda0_link0"), "panda/", "")
+        spec.worldbody.add_geom(name="pedestal", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[0.11, 0.4],
+                                pos=[BASE_XY[0], BASE_XY[1], BASE_Z - 0.4], rgba=[0.25, 0.25, 0.28, 1],
+                                contype=0, conaffinity=0)
+        hx, hy, hz = geo.box_half_extents
+        # the box, welded to the last link where the home configuration puts it
+        link7_pos, link7_rot = site_pose["link7"]
+        bx, by = geo.bottom_xy
+        box_world = np.array([bx, by, hz])
+        box = spec.body("panda/panda0_link7").add_body(name="box_bottom", pos=link7_rot.T @ (box_world - link7_pos))
+        quat = np.zeros(4)
+        mujoco.mju_mat2Quat(quat, link7_rot.T.reshape(-1).copy())
+        box.quat = quat
+        box.add_geom(name="box_bottom", type=mujoco.mjtGeom.mjGEOM_BOX, size=[hx, hy, hz], mass=geo.box_mass,
+                     rgba=box_rgba, friction=[box_friction, 0.005, 0.0001], gap=self.gap,
+                     contype=COLLIDE_TABLE | COLLIDE_OBJECTS, conaffinity=COLLIDE_TABLE | COLLIDE_OBJECTS)
+        for i, joint in enumerate(JOINTS):
+            servo = spec.add_actuator(name=f"servo{i + 1}", target=f"panda/{joint}", trntype=mujoco.mjtTrn.mjTRN_JOINT)
+            servo.dyntype = mujoco.mjtDyn.mjDYN_INTEGRATOR  # set-point = integral of ctrl: a ramp within the step
+            servo.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+            servo.biastype = mujoco.mjtBias.mjBIAS_AFFINE
+            servo.gainprm[0] = SERVO_GAIN[i]
+            servo.biasprm[:3] = [0.0, 0.0, -SERVO_GAIN[i]]
+            servo.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            servo.forcerange = [-FRANKA_JOINT_TORQUES[i], FRANKA_JOINT_TORQUES[i]]
+            servo.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
+        self._home = home
+
+    def bind(self, model: mujoco.MjModel) -> PandaBinding:
+        joints = [model.joint(f"panda/{j}") for j in JOINTS]
+        servos = [model.actuator(f"servo{i + 1}").id for i in range(7)]
+        acts = [int(model.actuator_actadr[a]) for a in servos]
+        if servos != list(range(servos[0], servos[0] + 7)) or acts != list(range(acts[0], acts[0] + 7)):
+            raise RuntimeError("the Panda's servos must be contiguous in the compiled model")
+        dofs = np.array([j.dofadr[0] for j in joints])
+        home, pose = home_configuration(_geometry_of(model))
+        nv = model.nv
+        return PandaBinding(
+            qpos_adr=np.array([j.qposadr[0] for j in joints]), dof_adr=dofs,
+            actuator_ids=slice(servos[0], servos[0] + 7), act_adr=slice(acts[0], acts[0] + 7),
+            ee_site=model.site(self.ee_site_name).id, site_body=int(model.site(self.ee_site_name).bodyid[0]),
+            box_body=model.body("box_bottom").id,
+            root_body=model.body(self.root_body_name).id, home_qpos=home, target_rotation=pose["site"][1],
+            jacp=np.zeros((3, nv)), jacr=np.zeros((3, nv)), jac6=np.zeros((6, 7)))
+
+    # ------------------------------------------------------------------ episode
+    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, binding: PandaBinding) -> None:
+        data.qpos[binding.qpos_adr] = binding.home_qpos
+        data.qvel[binding.dof_adr] = 0.0
+        data.act[binding.act_adr] = 0.0
+
+    def command_velocity(self, model, data, binding: PandaBinding, velocity: np.ndarray, dt: float) -> None:
+        """Track end-effector ``velocity`` (world frame, m/s) over the coming control step of ``dt`` s."""
+        mujoco.mj_jacSite(model, data, binding.jacp, binding.jacr, binding.ee_site)
+        jac = binding.jac6
+        jac[:3] = binding.jacp[:, binding.dof_adr]
+        jac[3:] = binding.jacr[:, binding.dof_adr]
+        # The joint velocities hold for the whole step while the arm moves (at 1.5 m/s the first joint turns
+        # ~0.13 rad), so solve with the Jacobian expected half-way through the step: J + (dt/2) dJ/dt.
+        mujoco.mj_jacDot(model, data, binding.jacp, binding.jacr, data.site_xpos[binding.ee_site],
+                         binding.site_body)
+        jac[:3] += (0.5 * dt) * binding.jacp[:, binding.dof_adr]
+        jac[3:] += (0.5 * dt) * binding.jacr[:, binding.dof_adr]
+        rotation = data.site_xmat[binding.ee_site].reshape(3, 3)
+        omega = orientation_error(rotation, binding.target_rotation) * (self.orientation_gain / dt)
+        q = data.qpos[binding.qpos_adr]
+        posture = self.posture_gain * (binding.home_qpos - q)
+        qdot = dls_joint_velocity(jac, np.concatenate((velocity, omega)), self.ik_damping, posture)
+        qdot = limit_joint_velocity(qdot, q, FRANKA_JOINT_RANGES[:, 0] + LIMIT_MARGIN,
+                                    FRANKA_JOINT_RANGES[:, 1] - LIMIT_MARGIN, SPEED_MARGIN * FRANKA_JOINT_SPEEDS, 2 * dt)
+        # ramp the servo set-points linearly from where they are to qdot over the step
+        data.ctrl[binding.actuator_ids] = (qdot - data.act[binding.act_adr]) / dt
+
+    @staticmethod
+    def joint_state(data, binding: PandaBinding) -> tuple[np.ndarray, np.ndarray]:
+        return data.qpos[binding.qpos_adr].copy(), data.qvel[binding.dof_adr].copy()
+
+
+def _geometry_of(model) -> TaskGeometry:
+    from safemanip.scene.config import GEOMETRY
+    return GEOMETRY
+
+
+@lru_cache(maxsize=4)
+def home_configuration(geo: TaskGeometry) -> tuple[np.ndarray, dict]:
+    """Joint angles that put the closed fingertips on the box lip with the hand pointing down.
+
+    Solved once by DLS IK on the bare arm from the ready posture; returns the angles and the world poses
+    of the ``end_effector`` site and of link 7 in that configuration.
+    """
+    spec = load_panda_spec(visual=False)
+    base = mujoco.MjSpec()
+    frame = base.worldbody.add_frame(pos=[BASE_XY[0], BASE_XY[1], BASE_Z], quat=[math.sqrt(0.5), 0, 0, math.sqrt(0.5)])
+    frame.attach_body(spec.body("panda0_link0"), "panda/", "")
+    model = base.compile()
+    data = mujoco.MjData(model)
+    hz = geo.box_half_extents[2]
+    gx, gy = geo.grasp_xy
+    target_pos = np.array([gx, gy, 2 * hz + FINGERTIP_BELOW_SITE])
+    # hand pointing down, fingers closing along world y (the hand is then thin along x, towards the top box)
+    target_rot = np.array([[-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]])
+    site = model.site("panda/end_effector").id
+    joints = [model.joint(f"panda/{j}") for j in JOINTS]
+    qadr = np.array([j.qposadr[0] for j in joints])
+    dadr = np.array([j.dofadr[0] for j in joints])
+    start = READY_POSTURE.copy()
+    start[0] = math.atan2(-(target_pos[0] - BASE_XY[0]), target_pos[1] - BASE_XY[1])  # face the grasp
+    start[6] -= start[0]  # and keep the hand's yaw
+    data.qpos[qadr] = start
+    jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+    lo, hi = FRANKA_JOINT_RANGES[:, 0] + LIMIT_MARGIN, FRANKA_JOINT_RANGES[:, 1] - LIMIT_MARGIN
+    for _ in range(1000):
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)
+        err = np.concatenate((target_pos - data.site_xpos[site],
+                              orientation_error(data.site_xmat[site].reshape(3, 3), target_rot)))
+        if np.linalg.norm(err) < 1e-6:
+            break
+        mujoco.mj_jacSite(model, data, jacp, jacr, site)
+        jac = np.vstack((jacp[:, dadr], jacr[:, dadr]))
+        step = dls_joint_velocity(jac, err, 0.01, 0.02 * (start - data.qpos[qadr]))
+        data.qpos[qadr] = np.clip(data.qpos[qadr] + 0.5 * step, lo, hi)
+    if np.linalg.norm(err) > 1e-4:
+        raise RuntimeError(f"no home configuration reaches the box grasp (residual {np.linalg.norm(err):.2e} m): "
+                           "the task geometry is out of the Panda's reach")
+    link7 = model.body("panda/panda0_link7").id
+    poses = {"site": (data.site_xpos[site].copy(), data.site_xmat[site].reshape(3, 3).copy()),
+             "link7": (data.xpos[link7].copy(), data.xmat[link7].reshape(3, 3).copy())}
+    return data.qpos[qadr].copy(), poses
