@@ -61,15 +61,20 @@ def dls_joint_velocity(jacobian: np.ndarray, twist: np.ndarray, damping: float,
 
 
 def limit_joint_velocity(qdot: np.ndarray, q: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-                         max_speed: np.ndarray, horizon: float) -> np.ndarray:
-    """Keep joints inside [lower, upper] over ``horizon`` seconds and under their speed limits.
+                         max_speed: np.ndarray, max_accel: np.ndarray) -> np.ndarray:
+    """Scale ``qdot`` down uniformly (its direction, and so the end-effector's, is kept) so that every joint
+    stays under its speed limit and can still brake to a stop before its position limit at ``max_accel``.
 
-    Position limits clip the joints that would leave their range (the end-effector then deviates from
-    the command, as a real arm at its limit does); speed limits scale the whole vector down uniformly,
-    so the direction of motion is kept.
+    Moving towards a limit at distance s, a joint may go at most sqrt(2 * max_accel * s): the arm slows
+    down smoothly as a joint nears its limit instead of hitting it, and a joint at its limit only stops
+    motions that would push it further.
     """
-    qdot = np.minimum(np.maximum(qdot, (lower - q) / horizon), (upper - q) / horizon)
-    ratio = float(np.max(np.abs(qdot) / max_speed))
+    towards = np.where(qdot > 0.0, upper - q, q - lower)
+    braking = np.sqrt(2.0 * max_accel * np.maximum(towards, 0.0))
+    allowed = np.minimum(max_speed, braking)
+    speed = np.abs(qdot)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = float(np.max(np.where(speed > 0.0, speed / np.maximum(allowed, 1e-12), 0.0)))
     if ratio > 1.0:
         qdot = qdot / ratio
     return qdot

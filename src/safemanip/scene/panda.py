@@ -48,6 +48,8 @@ FRANKA_JOINT_RANGES = np.array([(-2.8973, 2.8973), (-1.7628, 1.7628), (-2.8973, 
 """Franka's published joint position limits [rad]."""
 FRANKA_JOINT_SPEEDS = np.array([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])
 """Franka's published joint velocity limits [rad/s]."""
+FRANKA_JOINT_ACCELS = np.array([15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0])
+"""Franka's published joint acceleration limits [rad/s^2]."""
 FRANKA_JOINT_TORQUES = np.array([87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0])
 """Franka's published joint torque limits [Nm]."""
 READY_POSTURE = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
@@ -253,8 +255,10 @@ class PandaArm:
         q = data.qpos[binding.qpos_adr]
         posture = self.posture_gain * (binding.home_qpos - q)
         qdot = dls_joint_velocity(jac, np.concatenate((velocity, omega)), self.ik_damping, posture)
+        # brake at half Franka's joint accelerations: the servos lag a little behind their set-points
         qdot = limit_joint_velocity(qdot, q, FRANKA_JOINT_RANGES[:, 0] + LIMIT_MARGIN,
-                                    FRANKA_JOINT_RANGES[:, 1] - LIMIT_MARGIN, SPEED_MARGIN * FRANKA_JOINT_SPEEDS, 2 * dt)
+                                    FRANKA_JOINT_RANGES[:, 1] - LIMIT_MARGIN, SPEED_MARGIN * FRANKA_JOINT_SPEEDS,
+                                    0.5 * FRANKA_JOINT_ACCELS)
         # ramp the servo set-points linearly from where they are to qdot over the step
         data.ctrl[binding.actuator_ids] = (qdot - data.act[binding.act_adr]) / dt
 
