@@ -1,0 +1,155 @@
+"""The Franka Panda embodiment: the model comes from the installed gymnasium-robotics package, carries the
+corrections we make to it, starts with its fingertips on the box lip, and never exceeds Franka's limits."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+import safemanip  # noqa: F401
+from safemanip.control.diff_ik import MAX_EE_ACCEL, MAX_EE_SPEED, limit_ee_velocity, limit_joint_velocity
+from safemanip.env.slide_out import SlideOutEnv
+from safemanip.scene.config import GEOMETRY
+from safemanip.scene.panda import (FRANKA_JOINT_RANGES, FRANKA_JOINT_SPEEDS, FRANKA_JOINT_TORQUES, JOINTS,
+                                   load_panda_spec, panda_asset_dir)
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_the_model_loads_from_the_installed_package_and_is_not_copied_here():
+    import gymnasium_robotics
+
+    folder = panda_asset_dir()
+    assert folder.is_relative_to(Path(gymnasium_robotics.__file__).parent)
+    assert not folder.is_relative_to(REPO)
+    model = load_panda_spec(visual=True).compile()
+    assert model.nmesh == 20  # 9 collision + 9 visual link meshes + 2 finger meshes, all from that folder
+    assert sum(model.body_mass) == pytest.approx(18.0, abs=0.05)
+    tracked = subprocess.run(["git", "ls-files"], cwd=REPO, capture_output=True, text=True).stdout.split()
+    assert not [f for f in tracked if f.lower().endswith((".stl", ".obj"))], "no robot mesh is copied into the repo"
+
+
+def test_the_corrections_are_applied():
+    model = load_panda_spec(visual=False).compile()
+    for i, name in enumerate(JOINTS):
+        joint = model.joint(name)
+        assert joint.damping[0] == pytest.approx(1.0) and joint.armature[0] == pytest.approx(0.1)
+        np.testing.assert_allclose(joint.range, FRANKA_JOINT_RANGES[i])
+    assert np.all(model.body_gravcomp[1:] == 1.0)
+    assert model.njnt == 7  # the fingers are fixed (closed on the box)
+    data = mujoco.MjData(model)
+    data.qpos[:7] = 0.0
+    mujoco.mj_kinematics(model, data)
+    # Franka's zero configuration: the flange 0.926 m up and 0.088 m forward, the hand pointing down
+    link7 = model.body("panda0_link7").id
+    np.testing.assert_allclose(data.xpos[link7], [0.088, 0.0, 1.033], atol=1e-3)
+    np.testing.assert_allclose(data.xmat[link7].reshape(3, 3)[:, 2], [0, 0, -1], atol=1e-3)
+
+
+def test_servos_are_torque_limited_like_a_panda():
+    env = SlideOutEnv(n_objects=0)
+    env.reset(seed=0)
+    forcerange = env.model.actuator_forcerange[env.binding.actuator_ids]
+    np.testing.assert_allclose(forcerange[:, 1], FRANKA_JOINT_TORQUES)
+    assert env.model.nu == 7
+
+
+def test_home_puts_the_fingertips_on_the_lip_with_the_hand_down():
+    env = SlideOutEnv(n_objects=0)
+    env.reset(seed=0)
+    d, b = env.data, env.binding
+    gx, gy = GEOMETRY.grasp_xy
+    np.testing.assert_allclose(d.site_xpos[b.ee_site][:2], [gx, gy], atol=1e-3)
+    np.testing.assert_allclose(d.site_xmat[b.ee_site].reshape(3, 3)[:, 2], [0, 0, -1], atol=1e-3)
+    q = d.qpos[b.qpos_adr]
+    assert np.all(q > FRANKA_JOINT_RANGES[:, 0]) and np.all(q < FRANKA_JOINT_RANGES[:, 1])
+    box = d.xpos[env.index.bottom_box_body]
+    np.testing.assert_allclose(box[:2], GEOMETRY.bottom_xy, atol=1e-3)
+
+
+def test_cartesian_limiter_caps_speed_by_norm_and_acceleration():
+    dt = 0.05
+    v = limit_ee_velocity(np.array([3.0, 3.0, 0.0]), np.zeros(3), dt)
+    assert np.linalg.norm(v) == pytest.approx(MAX_EE_ACCEL * dt)
+    assert v[0] == pytest.approx(v[1])  # direction kept, not clipped per axis
+    previous = np.array([1.7, 0.0, 0.0])
+    v = limit_ee_velocity(np.array([-1.7, 0.0, 0.0]), previous, dt)
+    assert np.linalg.norm(v - previous) == pytest.approx(MAX_EE_ACCEL * dt)
+    v = np.zeros(3)
+    for _ in range(10):
+        v = limit_ee_velocity(np.array([5.0, 5.0, 5.0]), v, dt)
+    assert np.linalg.norm(v) == pytest.approx(MAX_EE_SPEED)
+
+
+def test_joint_limiter_keeps_direction_and_brakes_before_the_range_ends():
+    lower, upper = -np.ones(2), np.ones(2)
+    speed, accel = np.full(2, 2.0), np.full(2, 10.0)
+    qdot = limit_joint_velocity(np.array([4.0, 2.0]), np.zeros(2), lower, upper, speed, accel)
+    np.testing.assert_allclose(qdot, [2.0, 1.0])  # scaled uniformly
+    near = limit_joint_velocity(np.array([2.0, 0.0]), np.array([0.99, 0.0]), lower, upper, speed, accel)
+    assert near[0] == pytest.approx(np.sqrt(2 * 10.0 * 0.01))  # can still stop within the 1 cm left
+    away = limit_joint_velocity(np.array([-2.0, 0.0]), np.array([0.99, 0.0]), lower, upper, speed, accel)
+    assert away[0] == pytest.approx(-2.0)  # moving away from a limit is never held back
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("actions", ["random", "full-scale"])
+def test_franka_limits_are_never_exceeded(actions):
+    """Watching every 2 ms physics step over random and full-scale (corner of the action cube) actions:
+    commanded speed <= 1.7 m/s and commanded acceleration <= 13 m/s^2 exactly; achieved end-effector speed,
+    joint speeds and joint positions within Franka's limits at every substep; achieved acceleration,
+    averaged over each control step, within 13 m/s^2 (+5 %)."""
+    env = SlideOutEnv(n_objects=0)
+    rng = np.random.default_rng(0)
+    samples = []
+
+    def watch(e):
+        velocity = np.zeros(6)
+        mujoco.mj_objectVelocity(e.model, e.data, mujoco.mjtObj.mjOBJ_SITE, e.binding.ee_site, velocity, 0)
+        samples.append((velocity[3:].copy(), e.data.qvel[e.binding.dof_adr].copy(), e.data.qpos[e.binding.qpos_adr].copy()))
+
+    env.watch_substeps(1, watch)
+    for episode in range(6):
+        env.reset(seed=episode)
+        samples.clear()
+        previous_command = np.zeros(3)
+        step_end_velocities = [np.zeros(3)]
+        for _ in range(30):
+            a = rng.uniform(-1, 1, 3) if actions == "random" else np.sign(rng.uniform(-1, 1, 3))
+            *_, terminated, _, _ = env.step(a.astype(np.float32))
+            command = env._command
+            assert np.linalg.norm(command) <= MAX_EE_SPEED + 1e-9
+            assert np.linalg.norm(command - previous_command) <= MAX_EE_ACCEL * 0.05 + 1e-9
+            previous_command = command.copy()
+            step_end_velocities.append(samples[-1][0])
+            if terminated:
+                break
+        ee_velocity = np.array([s[0] for s in samples])
+        qdot = np.array([s[1] for s in samples])
+        q = np.array([s[2] for s in samples])
+        assert np.linalg.norm(ee_velocity, axis=1).max() <= MAX_EE_SPEED
+        assert np.all(np.abs(qdot) <= FRANKA_JOINT_SPEEDS)
+        assert np.all(q >= FRANKA_JOINT_RANGES[:, 0]) and np.all(q <= FRANKA_JOINT_RANGES[:, 1])
+        per_step = np.linalg.norm(np.diff(np.array(step_end_velocities), axis=0), axis=1) / 0.05
+        assert per_step.max() <= 1.05 * MAX_EE_ACCEL, per_step.max()
+
+
+def test_the_hand_ablation_has_the_same_cartesian_limits():
+    env = SlideOutEnv(n_objects=0, embodiment="hand")
+    env.reset(seed=0)
+    speeds = []
+    for _ in range(8):
+        obs, *_ = env.step(np.array([1.0, 1.0, 0.0], dtype=np.float32))
+        speeds.append(np.linalg.norm(env._command))
+    assert speeds[0] == pytest.approx(MAX_EE_ACCEL * 0.05) and max(speeds) == pytest.approx(MAX_EE_SPEED)
+
+
+def test_nan_actions_are_refused_with_a_message():
+    env = SlideOutEnv(n_objects=0)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="action must be finite"):
+        env.step(np.array([np.nan, 0.0, 0.0], dtype=np.float32))
