@@ -22,9 +22,17 @@ def test_policy_demo_writes_a_summary_with_margins(tmp_path):
 
 def test_scripted_demo_on_an_empty_table_succeeds_and_writes_a_video(tmp_path):
     pytest.importorskip("imageio")
-    result = run_demo(out_dir=tmp_path, controller="scripted", n_objects=0, seed=1)
+    result = run_demo(out_dir=tmp_path, controller="scripted", n_objects=0, seed=1, slowmo=2.0)
     assert result.event == "success"
     assert result.video is not None and result.video.stat().st_size > 1000
+    summary = json.loads(result.summary.read_text())
+    # frames rendered between control steps: 50 per simulated second (plus the reset frame)
+    assert summary["video_frames"] == 1 + (result.steps * 5) // 2
+    assert summary["video_frames"] / (result.steps * 0.05) >= 30
+    import imageio.v3 as iio
+
+    if result.video.suffix == ".mp4":
+        assert iio.immeta(result.video)["fps"] == pytest.approx(25.0)  # 50 frames per simulated second, 2x slower
 
 
 def test_demo_cli_reports_errors_without_a_traceback(tmp_path, capsys):

@@ -10,7 +10,8 @@ def _cmd_demo(args) -> int:
     from safemanip.demo import print_report, run_demo
 
     result = run_demo(out_dir=args.out, controller=args.controller, policy=args.policy, seed=args.seed,
-                      n_objects=args.n_objects, video=not args.no_video, camera=args.camera, selector=args.selector)
+                      n_objects=args.n_objects, video=not args.no_video, camera=args.camera, selector=args.selector,
+                      fps=args.fps, slowmo=args.slowmo)
     print_report(result, result.summary)
     return 0
 
@@ -65,6 +66,9 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--n-objects", type=int, default=4)
     demo.add_argument("--camera", default="front", choices=["front", "top"])
     demo.add_argument("--no-video", action="store_true", help="skip rendering (faster, no OpenGL needed)")
+    demo.add_argument("--fps", type=int, default=50, choices=[20, 25, 50, 100],
+                      help="video frames per simulated second (rendered between control steps)")
+    demo.add_argument("--slowmo", type=float, default=1.0, help="play the video this many times slower (1-100)")
     demo.set_defaults(func=_cmd_demo)
 
     tr = sub.add_parser("train", help="train a reach-avoid (rarl) or vanilla DDPG policy")

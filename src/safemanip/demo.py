@@ -11,6 +11,9 @@ import numpy as np
 
 DEFAULT_SCENE = {"n_objects": 4, "seed": 7}
 DEFAULT_POLICY = "rarl-k2-conservative"  # shipped in src/safemanip/policies/
+_WATCH_FPS = 100  # frames per simulated second when filming every 5 substeps of 2 ms
+VIDEO_FPS = (20, 25, 50, 100)
+"""Frames per simulated second a demo video can have (divisors of 100)."""
 
 
 @dataclass
@@ -38,17 +41,23 @@ def write_video(frames: list[np.ndarray], path_stem: Path, fps: int) -> Path:
 
 def run_demo(out_dir: str | Path = "demo_output", controller: str = "policy", policy: str = DEFAULT_POLICY,
              seed: int = DEFAULT_SCENE["seed"], n_objects: int = DEFAULT_SCENE["n_objects"], video: bool = True,
-             camera: str = "front", selector: str = "dynamic-knn") -> DemoResult:
+             camera: str = "front", selector: str = "dynamic-knn", fps: int = 50, slowmo: float = 1.0) -> DemoResult:
     """One rollout in the default cluttered scene (ground-truth semantics judge every object).
 
     ``controller="policy"``: a shipped or trained policy sees the ``selector``'s k relevant objects
     through the reducer; ``"scripted"``: the fast-pull-then-slide baseline that ignores the clutter.
+    The video has ``fps`` frames per simulated second (rendered between control steps, from inside the
+    physics substeps) and plays ``slowmo`` times slower than real time.
     """
     from safemanip.control.scripted import ScriptedController
     from safemanip.env.slide_out import SlideOutEnv
 
     if controller not in ("policy", "scripted"):
         raise ValueError(f"unknown controller {controller!r}: use 'policy' or 'scripted'")
+    if fps not in VIDEO_FPS:
+        raise ValueError(f"--fps must be one of {VIDEO_FPS} frames per simulated second, got {fps!r}")
+    if not (isinstance(slowmo, (int, float)) and 1.0 <= slowmo <= 100.0):
+        raise ValueError(f"--slowmo must be a number from 1 (real time) to 100, got {slowmo!r}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     env = SlideOutEnv(n_objects=n_objects, render_mode="rgb_array" if video else None, slot_order="nearest")
@@ -59,8 +68,18 @@ def run_demo(out_dir: str | Path = "demo_output", controller: str = "policy", po
     def record(env, info, ids=()) -> None:
         trace.append({"t": info["t"], "l": info["l"], "g": info["g"], **info["margins"]})
         selections.append([env.names[i] for i in ids])
-        if video:
+        if video and info["t"] == 0:
             frames.append(env.render_camera(camera))
+
+    if video:  # frames between control steps: every 5 physics substeps is 100 per simulated second
+        calls = {"n": 0}
+
+        def film(env) -> None:
+            calls["n"] += 1
+            if calls["n"] % (_WATCH_FPS // fps) == 0:
+                frames.append(env.render_camera(camera))
+
+        env.watch_substeps(env.n_substeps // 5, film)
 
     t0 = time.perf_counter()
     if controller == "scripted":
@@ -102,11 +121,13 @@ def run_demo(out_dir: str | Path = "demo_output", controller: str = "policy", po
         agent_desc = (f"policy {resolve_policy(policy).name} ({meta['algorithm']}, k={k}, {meta['constraints']}) "
                       f"seeing the {k} objects picked by {selector}")
     wall = time.perf_counter() - t0
-    video_path = write_video(frames, out / "rollout", env.metadata["render_fps"]) if video else None
+    video_path = write_video(frames, out / "rollout", fps / slowmo) if video else None
     summary = {
         "outcome": event, "steps": steps, "object": culprit, "controller": agent_desc,
         "scene": {"seed": seed, "objects": list(env.names), "constraints": list(env.constraints)},
-        "video": str(video_path) if video_path else None, "wall_time_s": round(wall, 3),
+        "video": str(video_path) if video_path else None, "video_frames": len(frames),
+        "video_fps_simulated": fps if video else None, "slowmo": slowmo if video else None,
+        "wall_time_s": round(wall, 3),
         "margins_over_time": trace, "selected_over_time": selections,
     }
     summary_path = out / "summary.json"
