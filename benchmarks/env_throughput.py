@@ -1,11 +1,15 @@
-"""Env steps per second next to raw ``mj_step`` throughput of the same compiled model, in one run.
+"""Env steps per second next to raw ``mj_step`` throughput of the same physics, in one run, per embodiment.
 
-    python benchmarks/env_throughput.py [--steps 3000] [--repeats 5]
+    python benchmarks/env_throughput.py [--steps 2000] [--repeats 5] [--embodiments panda hand]
 
-Raw physics = mj_step calls per second divided by the substeps per env step (25), i.e. the env's
-ceiling if it did nothing but integrate. Both run on one core (one process, one thread) with the same
-actions (a noisy scripted controller) and the same episode length. Numbers are medians over repeats, interleaved so that machine
-noise hits both columns alike.
+Raw physics = the same compiled model stepped with bare ``mj_step`` (25 substeps per env step in one
+call) from the same initial states with the same actuator commands the env produced: the env's ceiling
+if it did nothing but integrate. "raw, no judge" is the same replay on the scene compiled without the
+per-substep judge sensors and contact gap, so its difference to "raw" is what judging costs inside
+MuJoCo. The controller (the Panda's differential IK, the hand's set-point write) and the judge's Python
+side (one history gather and the substep margins) are timed separately, in microseconds per env step.
+Actions: the scripted controller plus noise, so episodes look like a rollout's. One process, one thread;
+medians over interleaved repeats.
 """
 
 from __future__ import annotations
@@ -19,81 +23,138 @@ import numpy as np
 
 from safemanip.control.scripted import ScriptedController
 from safemanip.env.slide_out import SlideOutEnv
+from safemanip.scene.builder import build_spec
+from safemanip.scene.embodiment import make_embodiment
+
+STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 
 
 def _physics_state(env: SlideOutEnv) -> np.ndarray:
-    spec = mujoco.mjtState.mjSTATE_INTEGRATION
-    state = np.empty(mujoco.mj_stateSize(env.model, spec))
-    mujoco.mj_getState(env.model, env.data, state, spec)
+    state = np.empty(mujoco.mj_stateSize(env.model, STATE))
+    mujoco.mj_getState(env.model, env.data, state, STATE)
     return state
 
 
 def env_rate(env: SlideOutEnv, steps: int, rng):
-    """(env steps/s, mean steps per episode, actions, episode starts).
-
-    Actions come from the scripted controller plus Gaussian noise, so episodes look like a training
-    rollout's (a pull, then a slide) rather than random flailing that fails in five steps. Resets
-    (placement sampling; no compilation, since the object names are fixed) are part of the cost.
-    Each episode's initial physics state is recorded (outside the timed region) for the raw replay.
-    """
+    """(env steps/s, mean episode length, ctrl per step, act per step, episode start states)."""
     controller = ScriptedController()
     noise = rng.normal(0, 0.3, (steps, 3))
-    actions = np.zeros((steps, 3))
-    _, info = env.reset(seed=0)
+    ctrls = np.zeros((steps, env.model.nu))
+    acts = np.zeros((steps, env.model.na))
+    _, info = env.reset(seed=int(rng.integers(1 << 30)))
     controller.reset()
     starts = {0: _physics_state(env)}
     elapsed = 0.0
     for i in range(steps):
-        actions[i] = np.clip(controller.act(info, env) + noise[i], -1, 1)  # the controller is not timed
+        action = np.clip(controller.act(info, env) + noise[i], -1, 1)  # the controller is not timed
         t0 = time.perf_counter()
-        _, _, term, trunc, info = env.step(actions[i])
+        _, _, term, trunc, info = env.step(action)
         if term or trunc:
             _, info = env.reset()
         elapsed += time.perf_counter() - t0
+        # what the embodiment commanded for this step (read back from the state the step started from)
+        ctrls[i] = env._bench_ctrl
+        acts[i] = env._bench_act
         if term or trunc:
             controller.reset()
             starts[i + 1] = _physics_state(env)
-    return steps / elapsed, steps / len(starts), actions, starts
+    return steps / elapsed, steps / len(starts), ctrls, acts, starts
 
 
-def raw_rate(env: SlideOutEnv, actions: np.ndarray, starts: dict) -> float:
-    """Replays exactly the env's physics: the same initial states, the same hand commands, only mj_step
-    (25 substeps per env step in one call)."""
-    m, d, b = env.model, env.data, env.binding
-    spec = mujoco.mjtState.mjSTATE_INTEGRATION
-    velocities = actions * (env.max_step / 0.05)
+def raw_rate(model, data, ctrls, acts, starts, n_substeps) -> float:
+    """Replays the env's physics: the same initial states and actuator commands, only mj_step."""
     t0 = time.perf_counter()
-    for i in range(len(actions)):
+    for i in range(len(ctrls)):
         if i in starts:
-            mujoco.mj_setState(m, d, starts[i], spec)
-        d.act[b.act_adr] = d.qpos[b.qpos_adr]
-        d.ctrl[b.actuator_ids] = d.ctrl[b.velocity_actuator_ids] = velocities[i]
-        mujoco.mj_step(m, d, nstep=env.n_substeps)
-    return len(actions) / (time.perf_counter() - t0)
+            mujoco.mj_setState(model, data, starts[i], STATE)
+        data.act[:] = acts[i]
+        data.ctrl[:] = ctrls[i]
+        mujoco.mj_step(model, data, nstep=n_substeps)
+    return len(ctrls) / (time.perf_counter() - t0)
+
+
+def _record_commands(env: SlideOutEnv) -> None:
+    """Wrap the embodiment's command so each step's ctrl/act (after the controller ran) are kept."""
+    robot = env.robot
+    original = robot.command_velocity
+
+    def command_velocity(model, data, binding, velocity, dt):
+        original(model, data, binding, velocity, dt)
+        env._bench_ctrl, env._bench_act = data.ctrl.copy(), data.act.copy()
+
+    robot.command_velocity = command_velocity
+
+
+def component_costs(env: SlideOutEnv, repeats: int = 2000) -> tuple[float, float]:
+    """(controller us per call, judge us per step) on the env's current state."""
+    m, d, b = env.model, env.data, env.binding
+    velocity = np.array([0.5, 0.1, 0.0])
+    saved = _physics_state(env)
+    t0 = time.perf_counter()
+    for _ in range(repeats):
+        env.robot.command_velocity(m, d, b, velocity, 0.05)
+    controller = (time.perf_counter() - t0) / repeats * 1e6
+    mujoco.mj_setState(m, d, saved, STATE)
+    t0 = time.perf_counter()
+    for _ in range(repeats):
+        env._margins(substeps=True)
+    with_substeps = (time.perf_counter() - t0) / repeats
+    t0 = time.perf_counter()
+    for _ in range(repeats):
+        env._margins()
+    end_only = (time.perf_counter() - t0) / repeats
+    return controller, (with_substeps - end_only) * 1e6
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--steps", type=int, default=3000)
+    p.add_argument("--steps", type=int, default=2000)
     p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--embodiments", nargs="+", default=["panda", "hand"], choices=["panda", "hand"])
+    p.add_argument("--objects", nargs="+", type=int, default=[0, 2, 6])
     args = p.parse_args()
     rows = []
     names = ("red mug", "toy sheep", "plant pot", "soda can", "wine glass", "tennis ball")
-    for n in (0, 2, 6):
-        for sleep in (True, False):
-            env = SlideOutEnv(n_objects=n, names=names[:n], sleep=sleep)
-            rng = np.random.default_rng(0)
-            envs, raws, lengths = [], [], []
-            for _ in range(args.repeats):
-                rate, length, actions, starts = env_rate(env, args.steps, rng)
-                envs.append(rate)
-                lengths.append(length)
-                raws.append(raw_rate(env, actions, starts))
-            e, r = statistics.median(envs), statistics.median(raws)
-            rows.append((n, "on" if sleep else "off", e, r, e / r, statistics.median(lengths)))
-    print(f"{'N':>3} {'sleep':>5} {'env steps/s':>12} {'raw physics':>12} {'ratio':>6} {'ep. length':>10}")
-    for n, s, e, r, ratio, length in rows:
-        print(f"{n:>3} {s:>5} {e:>12.0f} {r:>12.0f} {ratio:>6.2f} {length:>10.1f}")
+    for embodiment in args.embodiments:
+        for n in args.objects:
+            for sleep in (True, False):
+                env = SlideOutEnv(n_objects=n, names=names[:n], sleep=sleep, embodiment=embodiment)
+                _record_commands(env)
+                env.reset(seed=0)
+                bare = build_spec(names[:n], make_embodiment(embodiment, visual=False, gap=0.0), sleep=sleep,
+                                  judge=False).compile()
+                bare_data = mujoco.MjData(bare)
+                rng = np.random.default_rng(0)
+                envs, raws, bares, lengths = [], [], [], []
+                for _ in range(args.repeats):
+                    rate, length, ctrls, acts, starts = env_rate(env, args.steps, rng)
+                    envs.append(rate)
+                    lengths.append(length)
+                    raws.append(raw_rate(env.model, env.data, ctrls, acts, starts, env.n_substeps))
+                    bare_starts = {}
+                    for i, s in starts.items():  # same qpos/qvel/act, the bare model has no sensor history
+                        mujoco.mj_setState(env.model, env.data, s, STATE)
+                        bare_data.qpos[:], bare_data.qvel[:], bare_data.act[:] = env.data.qpos, env.data.qvel, env.data.act
+                        bare_data.time = env.data.time
+                        bare_starts[i] = _physics_state_of(bare, bare_data)
+                    bares.append(raw_rate(bare, bare_data, ctrls, acts, bare_starts, env.n_substeps))
+                env.reset(seed=1)
+                env.step(np.array([0.5, 0.0, 0.0]))
+                controller_us, judge_us = component_costs(env)
+                e, r, b = statistics.median(envs), statistics.median(raws), statistics.median(bares)
+                rows.append((embodiment, n, "on" if sleep else "off", e, r, e / r, b, controller_us, judge_us,
+                             statistics.median(lengths)))
+    print(f"{'robot':>6} {'N':>2} {'sleep':>5} {'env steps/s':>11} {'raw physics':>11} {'ratio':>5} "
+          f"{'raw, no judge':>13} {'controller us':>13} {'judge us':>8} {'ep. len':>7}")
+    for robot, n, s, e, r, ratio, b, c, j, length in rows:
+        print(f"{robot:>6} {n:>2} {s:>5} {e:>11.0f} {r:>11.0f} {ratio:>5.2f} {b:>13.0f} {c:>13.1f} {j:>8.1f} "
+              f"{length:>7.1f}")
+
+
+def _physics_state_of(model, data) -> np.ndarray:
+    state = np.empty(mujoco.mj_stateSize(model, STATE))
+    mujoco.mj_getState(model, data, state, STATE)
+    return state
 
 
 if __name__ == "__main__":

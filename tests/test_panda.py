@@ -153,3 +153,20 @@ def test_nan_actions_are_refused_with_a_message():
     env.reset(seed=0)
     with pytest.raises(ValueError, match="action must be finite"):
         env.step(np.array([np.nan, 0.0, 0.0], dtype=np.float32))
+
+
+def test_ik_building_blocks_match_their_textbook_forms():
+    from safemanip.control.diff_ik import dls_joint_velocity, orientation_error
+
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        a, b = (np.linalg.qr(rng.normal(size=(3, 3)))[0] for _ in range(2))
+        a, b = a * np.sign(np.linalg.det(a)), b * np.sign(np.linalg.det(b))
+        expected = 0.5 * sum(np.cross(a[:, i], b[:, i]) for i in range(3))
+        np.testing.assert_allclose(orientation_error(a, b), expected, atol=1e-12)
+    jac, twist, posture, damping = rng.normal(size=(6, 7)), rng.normal(size=6), rng.normal(size=7), 0.02
+    pinv = jac.T @ np.linalg.inv(jac @ jac.T + damping ** 2 * np.eye(6))
+    np.testing.assert_allclose(dls_joint_velocity(jac, twist, damping, posture),
+                               pinv @ twist + posture - pinv @ jac @ posture, atol=1e-10)
+    # with no damping and a full-rank J, the twist is tracked exactly whatever the null-space term
+    np.testing.assert_allclose(jac @ dls_joint_velocity(jac, twist, 0.0, posture), twist, atol=1e-9)

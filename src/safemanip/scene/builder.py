@@ -128,7 +128,9 @@ def _add_judge_sensors(spec: mujoco.MjSpec, embodiment: Embodiment, n_objects: i
 
 
 def build_spec(names: tuple[str, ...], embodiment: Embodiment | None = None, geometry: TaskGeometry = GEOMETRY,
-               sleep: bool = True) -> mujoco.MjSpec:
+               sleep: bool = True, judge: bool = True) -> mujoco.MjSpec:
+    """The scene's spec. ``judge=False`` leaves out the per-substep judge sensors (benchmarks use it to
+    price them; the env needs them)."""
     catalog = load_catalog()
     embodiment = embodiment if embodiment is not None else make_embodiment("panda")
     spec = mujoco.MjSpec()
@@ -138,7 +140,8 @@ def build_spec(names: tuple[str, ...], embodiment: Embodiment | None = None, geo
     _add_top_box(spec, geometry)
     for i, name in enumerate(names):
         _add_object(spec, i, catalog[name])
-    _add_judge_sensors(spec, embodiment, len(names))
+    if judge:
+        _add_judge_sensors(spec, embodiment, len(names))
     if sleep:
         # resting clutter islands go to sleep and cost nothing until something touches them
         spec.option.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)
