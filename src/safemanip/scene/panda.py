@@ -158,6 +158,7 @@ class PandaBinding:
     jacp: np.ndarray
     jacr: np.ndarray
     jac6: np.ndarray
+    speed_scale: float = 1.0  # last step: share of the IK's joint speeds the joint limits let through
 
 
 class PandaArm:
@@ -255,10 +256,12 @@ class PandaArm:
         q = data.qpos[binding.qpos_adr]
         posture = self.posture_gain * (binding.home_qpos - q)
         qdot = dls_joint_velocity(jac, np.concatenate((velocity, omega)), self.ik_damping, posture)
+        unlimited = float(qdot @ qdot)
         # brake at half Franka's joint accelerations: the servos lag a little behind their set-points
         qdot = limit_joint_velocity(qdot, q, FRANKA_JOINT_RANGES[:, 0] + LIMIT_MARGIN,
                                     FRANKA_JOINT_RANGES[:, 1] - LIMIT_MARGIN, SPEED_MARGIN * FRANKA_JOINT_SPEEDS,
                                     0.5 * FRANKA_JOINT_ACCELS)
+        binding.speed_scale = math.sqrt(float(qdot @ qdot) / unlimited) if unlimited > 0.0 else 1.0
         # ramp the servo set-points linearly from where they are to qdot over the step
         data.ctrl[binding.actuator_ids] = (qdot - data.act[binding.act_adr]) / dt
 
