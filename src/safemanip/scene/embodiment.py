@@ -52,26 +52,9 @@ class HandBinding:
 
     qpos_adr: np.ndarray  # (3,) x, y, z slide joints
     qvel_adr: np.ndarray
-    actuator_ids: np.ndarray  # integrated-velocity (ramped set-point) actuators
-    velocity_actuator_ids: np.ndarray
-    act_adr: np.ndarray  # activation (set-point) addresses of the ramp actuators
+    actuator_ids: slice  # the three velocity servos (contiguous)
+    act_adr: slice  # their set-points
     ee_site: int
-    home: np.ndarray  # (3,) world position of the ee site at joint zero
-
-    def __post_init__(self):
-        # the per-step writes use slices where the ids are contiguous (they are, as compiled): a slice
-        # write costs a fraction of a fancy-index write, and this runs every control step
-        self._act = _as_slice(self.act_adr)
-        self._qpos = _as_slice(self.qpos_adr)
-        self._ctrl = _as_slice(self.actuator_ids)
-        self._ctrl_velocity = _as_slice(self.velocity_actuator_ids)
-
-
-def _as_slice(ids: np.ndarray):
-    ids = np.asarray(ids)
-    if len(ids) and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids))):
-        return slice(int(ids[0]), int(ids[0]) + len(ids))
-    return ids
 
 
 class CartesianHand:
@@ -81,8 +64,8 @@ class CartesianHand:
     root_body_name = "hand"
     ee_site_name = "ee"
     distance_geom_names = ("box_bottom", "hand_palm")
-    kp = 3000.0
-    """Position gain [N/m] (critically damped with the velocity actuators' kv)."""
+    servo_gain = 300.0
+    """Velocity servo gain [N s/m]: a 4 ms time constant against the hand and box (1.08 kg)."""
     mass = 0.73
     """Panda hand mass."""
     lift_range = (0.0, 0.02)
@@ -107,17 +90,15 @@ class CartesianHand:
         for axis, vec in zip("xyz", np.eye(3)):
             hand.add_joint(name=f"hand_{axis}", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=vec,
                            range=ranges[axis], limited=mujoco.mjtLimited.mjLIMITED_TRUE, armature=0.01)
-            kv = 2.0 * np.sqrt(self.kp * (self.mass + geo.box_mass))  # critically damped
-            # The set-point is the actuator's activation: it integrates the commanded velocity, so within a
-            # control step the target ramps smoothly inside MuJoCo (no per-substep Python).
-            ramp = spec.add_actuator(name=f"hand_{axis}", target=f"hand_{axis}", trntype=mujoco.mjtTrn.mjTRN_JOINT)
-            ramp.set_to_intvelocity(kp=self.kp)
-            ramp.actrange = ranges[axis]
-            ramp.actlimited = mujoco.mjtLimited.mjLIMITED_TRUE
-            # velocity feed-forward: damping pulls towards the commanded velocity, not towards rest, so the
-            # ramp is tracked without lag
-            vel = spec.add_actuator(name=f"hand_v{axis}", target=f"hand_{axis}", trntype=mujoco.mjtTrn.mjTRN_JOINT)
-            vel.set_to_velocity(kv=kv)
+            # the same servo as each Panda joint's: the set-point is an integrator state that the controller
+            # ramps linearly over each control step, so the commanded acceleration limit holds within the step
+            servo = spec.add_actuator(name=f"hand_{axis}", target=f"hand_{axis}", trntype=mujoco.mjtTrn.mjTRN_JOINT)
+            servo.dyntype = mujoco.mjtDyn.mjDYN_INTEGRATOR
+            servo.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+            servo.biastype = mujoco.mjtBias.mjBIAS_AFFINE
+            servo.gainprm[0] = self.servo_gain
+            servo.biasprm[:3] = [0.0, 0.0, -self.servo_gain]
+            servo.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
         # palm above the box edge and two fingers pinching it; palm collides with clutter, not the table
         hand.add_geom(name="hand_palm", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.03, 0.10, 0.025],
                       pos=[0, 0, hz + 0.09], mass=self.mass, rgba=[0.9, 0.9, 0.9, 1],
@@ -134,30 +115,22 @@ class CartesianHand:
 
     def bind(self, model: mujoco.MjModel) -> HandBinding:
         joints = [model.joint(f"hand_{a}") for a in "xyz"]
-        home = model.body("hand").pos.copy()
-        return HandBinding(
-            qpos_adr=np.array([j.qposadr[0] for j in joints]),
-            qvel_adr=np.array([j.dofadr[0] for j in joints]),
-            actuator_ids=np.array([model.actuator(f"hand_{a}").id for a in "xyz"]),
-            velocity_actuator_ids=np.array([model.actuator(f"hand_v{a}").id for a in "xyz"]),
-            act_adr=np.array([model.actuator_actadr[model.actuator(f"hand_{a}").id] for a in "xyz"]),
-            ee_site=model.site("ee").id,
-            home=home,
-        )
+        servos = [model.actuator(f"hand_{a}").id for a in "xyz"]
+        acts = [int(model.actuator_actadr[a]) for a in servos]
+        if servos != list(range(servos[0], servos[0] + 3)) or acts != list(range(acts[0], acts[0] + 3)):
+            raise RuntimeError("the hand's servos must be contiguous in the compiled model")
+        return HandBinding(qpos_adr=np.array([j.qposadr[0] for j in joints]),
+                           qvel_adr=np.array([j.dofadr[0] for j in joints]),
+                           actuator_ids=slice(servos[0], servos[0] + 3), act_adr=slice(acts[0], acts[0] + 3),
+                           ee_site=model.site("ee").id)
 
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, binding: HandBinding) -> None:
         """Joint zero is the grasp pose: nothing to do after ``mj_resetData``."""
 
     @staticmethod
     def command_velocity(model, data, binding: HandBinding, velocity: np.ndarray, dt: float) -> None:
-        """Move the end-effector at ``velocity`` (m/s) from where it is now, for the coming control step.
-
-        The set-point restarts at the measured position each call, so a blocked hand never winds up.
-        """
-        data.act[binding._act] = data.qpos[binding._qpos]
-        ctrl = data.ctrl
-        ctrl[binding._ctrl] = velocity
-        ctrl[binding._ctrl_velocity] = velocity
+        """Track end-effector ``velocity`` (m/s; the slide axes are world-aligned) over the coming step."""
+        data.ctrl[binding.actuator_ids] = (velocity - data.act[binding.act_adr]) / dt
 
 
 EMBODIMENTS = {"panda": PandaArm, "hand": CartesianHand}
