@@ -114,6 +114,7 @@ def run_episode(env, actor: Callable[[np.ndarray], np.ndarray], reducer: Reducer
     outcome = "success" if category == "success" else ("failure" if category in SAFETY_VIOLATIONS else category)
     return {
         "seed": int(seed), "outcome": outcome, "category": category, "event": event, "length": int(info["t"]),
+        "box_speed": round(float(np.linalg.norm(env.scene_state().bottom_vel)), 4),  # at the end: placed, not passing
         "object": info["object"] or "", "object_id": "" if obj is None else int(obj),
         "object_class": "" if obj is None else CLASS_OF_CONSTRAINT[env.constraints[obj]],
         "selected": "" if selected is None else ("yes" if selected else "no"),

@@ -226,6 +226,13 @@ def _rate(count: int, n: int) -> dict:
     return {"count": int(count), "rate": count / n if n else 0.0, "ci95": [lo, hi]}
 
 
+def _quantiles(values: list[float]) -> dict | None:
+    """Median, 95th percentile and maximum (m/s), or None without values."""
+    if not values:
+        return None
+    return {"median": float(np.median(values)), "p95": float(np.percentile(values, 95)), "max": float(np.max(values))}
+
+
 def summarize(records: list[dict]) -> dict:
     n = len(records)
     cats = Counter(r["category"] for r in records)
@@ -242,6 +249,7 @@ def summarize(records: list[dict]) -> dict:
         "mean_length_success": float(np.mean([r["length"] for r in records if r["category"] == "success"]))
         if cats["success"] else None,
         "mean_selection_changes": float(np.mean([r["selection_changes"] for r in records])) if n else 0.0,
+        "box_speed_at_success": _quantiles([r["box_speed"] for r in records if r["category"] == "success"]),
         "selector_queries": {key: int(sum(r[key] for r in records)) for key in
                              ("object_queries", "object_fallbacks", "constraint_queries", "constraint_fallbacks")},
     }
@@ -271,6 +279,10 @@ def format_summary(summary: dict, title: str) -> str:
         lines.append(f"  (soft-contact violations with an unselected object: {summary['soft_contact_unselected']})")
     lines.append(f"mean episode length: {summary['mean_length']:.1f} steps"
                  + (f" (successes: {summary['mean_length_success']:.1f})" if summary["mean_length_success"] else ""))
+    speed = summary.get("box_speed_at_success")
+    if speed:
+        lines.append(f"box speed at success: median {speed['median']:.3f} m/s, p95 {speed['p95']:.3f}, "
+                     f"max {speed['max']:.3f} (placed means slower than v_place)")
     q = summary["selector_queries"]
     if q["object_queries"] or q["constraint_queries"]:
         lines.append(f"semantic queries: objects {q['object_queries']} ({q['object_fallbacks']} fell back), "
@@ -306,6 +318,8 @@ def read_records(path: Path) -> list[dict]:
     for r in rows:
         for key in ints:
             r[key] = int(r[key])
+        if "box_speed" in r:  # absent in tables written before success meant placed
+            r["box_speed"] = float(r["box_speed"])
         r["object_id"] = int(r["object_id"]) if r["object_id"] != "" else ""
     return rows
 
