@@ -282,7 +282,7 @@ def render_query(seed: int, out_dir: str, *, n_objects: int = 4, steps: int = 8,
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    env = SlideOutEnv(n_objects=n_objects)
+    env = SlideOutEnv(n_objects=n_objects, visual=True)  # the annotated images show the arm as it looks
     try:
         _, info = env.reset(seed=seed)
         controller = ScriptedController()
