@@ -158,6 +158,9 @@ class PandaBinding:
     jacp: np.ndarray
     jacr: np.ndarray
     jac6: np.ndarray
+    twist: np.ndarray  # (6,) buffer
+    qpos: slice | np.ndarray  # qpos_adr / dof_adr as slices when contiguous (they are, as compiled)
+    dofs: slice | np.ndarray
     speed_scale: float = 1.0  # last step: share of the IK's joint speeds the joint limits let through
 
 
@@ -231,7 +234,8 @@ class PandaArm:
             ee_site=model.site(self.ee_site_name).id, site_body=int(model.site(self.ee_site_name).bodyid[0]),
             box_body=model.body("box_bottom").id,
             root_body=model.body(self.root_body_name).id, home_qpos=home, target_rotation=pose["site"][1],
-            jacp=np.zeros((3, nv)), jacr=np.zeros((3, nv)), jac6=np.zeros((6, 7)))
+            jacp=np.zeros((3, nv)), jacr=np.zeros((3, nv)), jac6=np.zeros((6, 7)), twist=np.zeros(6),
+            qpos=_as_slice(np.array([j.qposadr[0] for j in joints])), dofs=_as_slice(dofs))
 
     # ------------------------------------------------------------------ episode
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, binding: PandaBinding) -> None:
@@ -241,26 +245,24 @@ class PandaArm:
 
     def command_velocity(self, model, data, binding: PandaBinding, velocity: np.ndarray, dt: float) -> None:
         """Track end-effector ``velocity`` (world frame, m/s) over the coming control step of ``dt`` s."""
-        mujoco.mj_jacSite(model, data, binding.jacp, binding.jacr, binding.ee_site)
-        jac = binding.jac6
-        jac[:3] = binding.jacp[:, binding.dof_adr]
-        jac[3:] = binding.jacr[:, binding.dof_adr]
+        dofs, jac, jacp, jacr = binding.dofs, binding.jac6, binding.jacp, binding.jacr
+        mujoco.mj_jacSite(model, data, jacp, jacr, binding.ee_site)
+        jac[:3] = jacp[:, dofs]
+        jac[3:] = jacr[:, dofs]
         # The joint velocities hold for the whole step while the arm moves (at 1.5 m/s the first joint turns
         # ~0.13 rad), so solve with the Jacobian expected half-way through the step: J + (dt/2) dJ/dt.
-        mujoco.mj_jacDot(model, data, binding.jacp, binding.jacr, data.site_xpos[binding.ee_site],
-                         binding.site_body)
-        jac[:3] += (0.5 * dt) * binding.jacp[:, binding.dof_adr]
-        jac[3:] += (0.5 * dt) * binding.jacr[:, binding.dof_adr]
-        rotation = data.site_xmat[binding.ee_site].reshape(3, 3)
-        omega = orientation_error(rotation, binding.target_rotation) * (self.orientation_gain / dt)
-        q = data.qpos[binding.qpos_adr]
-        posture = self.posture_gain * (binding.home_qpos - q)
-        qdot = dls_joint_velocity(jac, np.concatenate((velocity, omega)), self.ik_damping, posture)
+        mujoco.mj_jacDot(model, data, jacp, jacr, data.site_xpos[binding.ee_site], binding.site_body)
+        jac[:3] += (0.5 * dt) * jacp[:, dofs]
+        jac[3:] += (0.5 * dt) * jacr[:, dofs]
+        twist = binding.twist
+        twist[:3] = velocity
+        twist[3:] = orientation_error(data.site_xmat[binding.ee_site].reshape(3, 3), binding.target_rotation)
+        twist[3:] *= self.orientation_gain / dt
+        q = data.qpos[binding.qpos]
+        qdot = dls_joint_velocity(jac, twist, self.ik_damping, self.posture_gain * (binding.home_qpos - q))
         unlimited = float(qdot @ qdot)
         # brake at half Franka's joint accelerations: the servos lag a little behind their set-points
-        qdot = limit_joint_velocity(qdot, q, FRANKA_JOINT_RANGES[:, 0] + LIMIT_MARGIN,
-                                    FRANKA_JOINT_RANGES[:, 1] - LIMIT_MARGIN, SPEED_MARGIN * FRANKA_JOINT_SPEEDS,
-                                    0.5 * FRANKA_JOINT_ACCELS)
+        qdot = limit_joint_velocity(qdot, q, _LOWER, _UPPER, _SPEED_CAP, _BRAKING)
         binding.speed_scale = math.sqrt(float(qdot @ qdot) / unlimited) if unlimited > 0.0 else 1.0
         # ramp the servo set-points linearly from where they are to qdot over the step
         data.ctrl[binding.actuator_ids] = (qdot - data.act[binding.act_adr]) / dt
@@ -268,6 +270,19 @@ class PandaArm:
     @staticmethod
     def joint_state(data, binding: PandaBinding) -> tuple[np.ndarray, np.ndarray]:
         return data.qpos[binding.qpos_adr].copy(), data.qvel[binding.dof_adr].copy()
+
+
+_LOWER = FRANKA_JOINT_RANGES[:, 0] + LIMIT_MARGIN
+_UPPER = FRANKA_JOINT_RANGES[:, 1] - LIMIT_MARGIN
+_SPEED_CAP = SPEED_MARGIN * FRANKA_JOINT_SPEEDS
+_BRAKING = 0.5 * FRANKA_JOINT_ACCELS
+
+
+def _as_slice(ids: np.ndarray):
+    """A slice for contiguous ids: slicing MjData costs a fraction of a fancy-index gather."""
+    if len(ids) and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids))):
+        return slice(int(ids[0]), int(ids[0]) + len(ids))
+    return ids
 
 
 def _geometry_of(model) -> TaskGeometry:
