@@ -18,12 +18,10 @@ from PIL import Image
 
 from safemanip.scene.catalog import CONSTRAINT_OF_CLASS, CONSTRAINT_TYPES, SEMANTIC_CLASSES, load_catalog
 from safemanip.selection.base import SceneView, nearest_ids
-from safemanip.semantics.base import Backend, BackendError, ConstraintQuery, ObjectQuery, object_label
+from safemanip.semantics.base import VLM_BACKENDS, Backend, BackendError, ConstraintQuery, ObjectQuery, object_label
 from safemanip.semantics.cache import ResponseCache
 
 log = logging.getLogger(__name__)
-
-BACKEND_NAMES = ("semantic", "openai")
 
 # Mild rewordings a person or a detector might produce for the same object; used to give a
 # deterministic backend something to disagree with itself about across trials.
@@ -46,7 +44,7 @@ def make_backend(backend_name: str, *, model: str | None = None, base_url: str |
         cache = ResponseCache(cache_dir, mode=cache_mode) if cache_dir else None
         return OpenAIBackend(model=model or "gpt-4o", base_url=base_url, cache=cache, timeout_s=timeout_s,
                              attempts=attempts)
-    raise ValueError(f"unknown backend {backend_name!r}; choose one of {BACKEND_NAMES}")
+    raise ValueError(f"unknown backend {backend_name!r}; choose one of {VLM_BACKENDS}")
 
 
 def _backend(backend: str | Backend, **kwargs) -> Backend:
