@@ -193,7 +193,7 @@ def prepare(req: EvalRequest) -> Prepared:
     classes = None
     if req.semantics:
         try:
-            classes = parse_semantics(req.semantics)
+            classes = parse_semantics_checked(req.semantics)
         except ValueError as err:
             problems.append(f"--semantics: {err}")
 
@@ -247,6 +247,21 @@ def prepare(req: EvalRequest) -> Prepared:
                     selector=selector, constraints=constraints, options=options, pad=req.pad)
     seeds = [req.seed * SEED_STRIDE + i for i in range(req.episodes)]
     return Prepared(req, spec, meta, seeds, n, notes)
+
+
+def parse_semantics_checked(text: str) -> list[str]:
+    """``scene.config.parse_semantics`` with every count checked first (a huge count is a message, not an
+    attempt to build a list of that length)."""
+    import re
+
+    from safemanip.scene.config import MAX_OBJECTS, parse_semantics
+
+    if len(text) > 1000:
+        raise ValueError(f"{len(text)} characters is not a scene description; write e.g. '2 fragile, 3 durable'")
+    too_big = [int(n) for n in re.findall(r"\d+", text) if int(n) > MAX_OBJECTS]
+    if too_big:
+        raise ValueError(f"{text!r}: a scene holds at most {MAX_OBJECTS} objects, got a count of {too_big[0]}")
+    return parse_semantics(text)
 
 
 # ------------------------------------------------------------------------------------------ summary

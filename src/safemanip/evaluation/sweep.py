@@ -138,9 +138,9 @@ def _validate(cfg: dict, where: str) -> None:
                                                             for sem in e.get("semantics", [])]
     for sem in all_semantics:
         if sem is not None:
-            from safemanip.scene.config import parse_semantics
+            from safemanip.evaluation.harness import parse_semantics_checked
             try:
-                parse_semantics(sem)
+                parse_semantics_checked(sem) if isinstance(sem, str) else parse_semantics_checked(str(sem))
             except ValueError as err:
                 problems.append(str(err))
     extra = cfg.get("k_equals_n_selector")
