@@ -127,8 +127,8 @@ class PartialRun(Exception):
         self.records, self.signum = records, signum
 
 
-def _worker_init() -> None:
-    die_with_parent()  # a worker never outlives the evaluation that started it (kill -9 included)
+def _worker_init(parent_pid: int) -> None:
+    die_with_parent(parent_pid)  # a worker never outlives the evaluation that started it (kill -9 included)
 
 
 def run_local(spec: EvalSpec, seeds: list[int], workers: int = 2, chunk_size: int | None = None,
@@ -160,7 +160,7 @@ def _run_local(spec, chunks, workers, on_chunk, records: list[dict]) -> None:
 
         with _env_vars(_ONE_THREAD):
             pool = ProcessPoolExecutor(min(workers, len(chunks)), mp_context=mp.get_context("spawn"),
-                                       initializer=_worker_init)
+                                       initializer=_worker_init, initargs=(os.getpid(),))
         try:
             futures = [pool.submit(run_chunk, spec, c) for c in chunks]
             for fut in as_completed(futures):

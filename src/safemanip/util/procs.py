@@ -34,8 +34,10 @@ class Interrupted(Exception):
 def die_with_parent(parent_pid: int | None = None, poll_s: float = 0.5, ignore_sigint: bool = True) -> None:
     """Make this (worker) process exit when its parent does.
 
-    ``parent_pid``: the pid to watch (default: the current parent). With ``ignore_sigint`` a Ctrl-C in
-    the terminal (sent to the whole process group) is left to the parent, which stops the workers."""
+    ``parent_pid``: the pid to watch; pass the parent's own ``os.getpid()`` from the parent (the default,
+    the current parent, is already wrong if the parent died while this process was starting up). With
+    ``ignore_sigint`` a Ctrl-C in the terminal (sent to the whole process group) is left to the parent,
+    which stops the workers."""
     parent_pid = parent_pid or os.getppid()
     if ignore_sigint:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
