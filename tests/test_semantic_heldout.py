@@ -43,3 +43,21 @@ def test_heldout_v2_is_big_enough_for_a_two_percent_unsafe_rate():
     assert len(held["fragile"]) >= 50 and min(len(v) for v in held.values()) >= 30
     all_names = [n for v in held.values() for n in v]
     assert len(all_names) == len(set(all_names))
+
+
+def test_measured_figures_on_heldout_v2_and_the_catalog():
+    """The figures in the README, measured once (each name classified alone; deterministic). Neither v3 nor
+    v4 meets issue 11's targets on the v2 list (unsafe-error rate <= 2 %, balanced accuracy >= 0.85)."""
+    from safemanip.semantics.commands import name_confusion
+    from safemanip.semantics.semantic_backend import SemanticBackend
+
+    expected = {("v3", "heldout-v2"): (6, 0.790), ("v4", "heldout-v2"): (5, 0.811),
+                ("v3", "catalog"): (0, 0.861), ("v4", "catalog"): (1, 0.831)}
+    for version in ("v3", "v4"):
+        backend = SemanticBackend(examples_file=version)
+        for objects in ("heldout-v2", "catalog"):
+            r = name_confusion(backend, objects)
+            unsafe, bal = expected[(version, objects)]
+            assert r["names"] == (115 if objects == "heldout-v2" else 35)
+            assert sum(r["counts"]["no_contact"].values()) - r["counts"]["no_contact"]["no_contact"] == unsafe, r["wrong"]
+            assert abs(r["balanced_accuracy"] - bal) < 0.0015, r

@@ -15,6 +15,7 @@ import os
 
 from safemanip.cli.common import SEED, CliError, float_in, int_in
 from safemanip.semantics.base import VLM_BACKENDS
+from safemanip.semantics.commands import OBJECT_SETS
 
 CLASSIFY_EXAMPLES = """examples:
   safemanip classify-constraints "red mug" "toy sheep" "plastic water bottle"
@@ -171,9 +172,9 @@ def register(subparsers) -> None:
     cm.add_argument("--trials", type=int_in(1, 100_000), default=200, help="random scenes to ask about (default 200, as the paper)")
     cm.add_argument("--seed", type=SEED, default=0)
     cm.add_argument("--objects-per-scene", type=int_in(1, 100), default=6, help="objects per trial (default 6)")
-    cm.add_argument("--objects", default="catalog", choices=["catalog", "paper", "heldout"],
+    cm.add_argument("--objects", default="catalog", choices=OBJECT_SETS,
                     help="test names: every catalog object (default), the paper's eight objects (what its Tables III "
-                         "and IV are over), or the shipped held-out name list")
+                         "and IV are over), or the shipped held-out name lists (v1, or v2: no word shared with any example name)")
     cm.add_argument("--name-variants", action="store_true",
                     help="reword each appearance mildly ('the red mug', 'Red Mug', 'small red mug', ...)")
     cm.add_argument("--task", help="task description for the prompt (default: the slide-out task)")

@@ -65,7 +65,7 @@ def classify_constraints(backend_name: str | Backend, names: Sequence[str], *, t
 PAPER_OBJECTS = ("toy squirrel", "toy sheep", "toy android", "red mug", "blue mug", "porcelain mug", "supplement bottle",
                  "plant pot")
 """The eight objects of the paper's experiments (its Tables III and IV are over these)."""
-OBJECT_SETS = ("catalog", "paper", "heldout")
+OBJECT_SETS = ("catalog", "paper", "heldout", "heldout-v2")
 
 
 def object_set(which: str) -> dict[str, str]:
@@ -79,11 +79,29 @@ def object_set(which: str) -> dict[str, str]:
     if which == "paper":
         catalog = load_catalog()
         return {n: catalog[n].constraint for n in PAPER_OBJECTS}
-    if which == "heldout":
-        raw = json.loads(resources.files("safemanip.semantics").joinpath("data", "heldout_names_v1.json")
-                         .read_text(encoding="utf-8"))
+    if which in ("heldout", "heldout-v2"):
+        filename = "heldout_names_v1.json" if which == "heldout" else "heldout_names_v2.json"
+        raw = json.loads(resources.files("safemanip.semantics").joinpath("data", filename).read_text(encoding="utf-8"))
         return {n: CONSTRAINT_OF_CLASS[c] for c in SEMANTIC_CLASSES for n in sorted(raw["classes"][c])}
     raise ValueError(f"unknown object set {which!r}; choose one of {OBJECT_SETS}")
+
+
+def name_confusion(backend: Backend, objects: str) -> dict:
+    """Each name of an object set classified once, alone: counts[truth][predicted] over the constraint types,
+    the unsafe-error rate (a no_contact object given any other type), per-class recall, balanced accuracy
+    and the names that were wrong."""
+    truth = object_set(objects)
+    names = list(truth)
+    predicted = [backend.assign_constraints(ConstraintQuery(names=(n,))).constraints[0] for n in names]
+    counts = {t: {p: 0 for p in CONSTRAINT_TYPES} for t in CONSTRAINT_TYPES}
+    for n, p in zip(names, predicted):
+        counts[truth[n]][p] += 1
+    recall = {t: counts[t][t] / max(1, sum(counts[t].values())) for t in CONSTRAINT_TYPES}
+    fragile = sum(counts["no_contact"].values())
+    return {"objects": objects, "names": len(names), "counts": counts, "recall": recall,
+            "balanced_accuracy": sum(recall.values()) / len(recall),
+            "unsafe_rate": (fragile - counts["no_contact"]["no_contact"]) / max(1, fragile),
+            "wrong": {n: [truth[n], p] for n, p in zip(names, predicted) if p != truth[n]}}
 
 
 def constraint_matrix(backend_name: str | Backend, trials: int = 200, seed: int = 0, *, objects_per_scene: int = 6,
