@@ -288,6 +288,7 @@ def summarize(records: list[dict]) -> dict:
         "mean_selection_changes": float(np.mean([r["selection_changes"] for r in records])) if n else 0.0,
         "selector_queries": {key: int(sum(r[key] for r in records)) for key in
                              ("object_queries", "object_fallbacks", "constraint_queries", "constraint_fallbacks")},
+        "vlm_breaker_open_episodes": int(sum(r.get("vlm_breaker_open") == "yes" for r in records)),
     }
 
 
@@ -319,6 +320,9 @@ def format_summary(summary: dict, title: str) -> str:
     if q["object_queries"] or q["constraint_queries"]:
         lines.append(f"semantic queries: objects {q['object_queries']} ({q['object_fallbacks']} fell back), "
                      f"constraints {q['constraint_queries']} ({q['constraint_fallbacks']} fell back)")
+    if summary.get("vlm_breaker_open_episodes"):
+        lines.append(f"VLM circuit breaker open (fallback selectors answered) in {summary['vlm_breaker_open_episodes']} "
+                     f"of {n} episodes: the server failed repeatedly or a time budget ran out")
     return "\n".join(lines)
 
 
