@@ -9,20 +9,18 @@ unpickled, and every .safetensors file is checked (``check_safetensors``) before
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import os
 import shutil
 import struct
-import tempfile
 from pathlib import Path
 
 import numpy as np
 from safetensors.numpy import load_file as load_numpy
 from safetensors.numpy import save_file as save_numpy
 
-from safemanip.util.files import atomic_write_text
+from safemanip.util.files import atomic_path, atomic_write_text
 
 POLICY_FORMAT = "safemanip-policy/1"
 
@@ -117,15 +115,8 @@ def save_policy(path: Path, actor_arrays: list[np.ndarray], meta: dict) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tensors = {f"layer{i // 2}.{'weight' if i % 2 == 0 else 'bias'}": a for i, a in enumerate(actor_arrays)}
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         save_numpy(tensors, tmp, metadata={"format": POLICY_FORMAT, "meta": json.dumps(meta)})
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
     return path
 
 
