@@ -114,13 +114,33 @@ def test_kill_9_of_eval_leaves_no_process(tmp_path):
 
 @pytest.mark.slow
 def test_kill_9_of_sweep_leaves_no_process(tmp_path):
-    cfg = tmp_path / "s.json"
-    cfg.write_text(json.dumps({"name": "s", "figure": "table", "episodes": 400, "judge": "conservative",
-                               "policies": ["policies/rarl-k2-conservative.safetensors"], "n_objects": [3],
-                               "selectors": ["dynamic-knn"]}))
-    proc = start(["sweep", cfg, "--out", tmp_path / "sw", "--workers", "2", "--no-progress"], tmp_path, "sweep.log")
+    proc = start(["sweep", _sweep_config(tmp_path, 400), "--out", tmp_path / "sw", "--workers", "2", "--no-progress"], tmp_path, "sweep.log")
     workers = wait_for_workers(proc, 2)
     kill_and_check_orphans(proc, workers)
+
+
+def _sweep_config(tmp_path: Path, episodes: int) -> Path:
+    cfg = tmp_path / "s.json"
+    cfg.write_text(json.dumps({"name": "s", "figure": "table", "episodes": episodes, "judge": "conservative",
+                               "policies": ["policies/rarl-k2-conservative.safetensors"], "n_objects": [3],
+                               "selectors": ["dynamic-knn"]}))
+    return cfg
+
+
+@pytest.mark.slow
+def test_sigint_to_sweep_stops_cleanly_and_keeps_no_partial_cell(tmp_path):
+    out = tmp_path / "sw"
+    proc = start(["sweep", _sweep_config(tmp_path, 2000), "--out", out, "--workers", "2", "--no-progress"],
+                 tmp_path, "sweep.log")
+    workers = wait_for_workers(proc, 2)
+    time.sleep(2)
+    os.kill(proc.pid, signal.SIGINT)
+    assert proc.wait(timeout=60) == 130
+    text = (tmp_path / "sweep.log").read_text()
+    assert "Traceback" not in text and "interrupted" in text
+    assert not list((out / "cells").glob("*.json"))  # the interrupted cell is redone next time, not kept half-done
+    time.sleep(1)
+    assert not any(alive(p) for p in workers)
 
 
 @pytest.mark.slow
