@@ -127,8 +127,20 @@ class PartialRun(Exception):
         self.records, self.signum = records, signum
 
 
-def _worker_init(parent_pid: int) -> None:
-    die_with_parent(parent_pid)  # a worker never outlives the evaluation that started it (kill -9 included)
+_WORKER_SPEC: EvalSpec | None = None
+
+
+def _worker_init(parent_pid: int, spec: EvalSpec) -> None:
+    """Pool worker start-up: die with the parent (kill -9 included) and keep the spec, so that tasks carry only
+    their seeds. (A task holding the weights can fill the pipe to the workers; if they are then killed, the
+    pool's feeder thread blocks on that pipe for ever and so does the shutdown.)"""
+    global _WORKER_SPEC
+    die_with_parent(parent_pid)
+    _WORKER_SPEC = spec
+
+
+def _run_chunk_in_worker(seeds: list[int]) -> list[dict]:
+    return run_chunk(_WORKER_SPEC, seeds)
 
 
 def run_local(spec: EvalSpec, seeds: list[int], workers: int = 2, chunk_size: int | None = None,
@@ -160,9 +172,9 @@ def _run_local(spec, chunks, workers, on_chunk, records: list[dict]) -> None:
 
         with _env_vars(_ONE_THREAD):
             pool = ProcessPoolExecutor(min(workers, len(chunks)), mp_context=mp.get_context("spawn"),
-                                       initializer=_worker_init, initargs=(os.getpid(),))
+                                       initializer=_worker_init, initargs=(os.getpid(), spec))
         try:
-            futures = [pool.submit(run_chunk, spec, c) for c in chunks]
+            futures = [pool.submit(_run_chunk_in_worker, c) for c in chunks]
             for fut in as_completed(futures):
                 part = fut.result()
                 records += part
