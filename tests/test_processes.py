@@ -127,17 +127,24 @@ def _sweep_config(tmp_path: Path, episodes: int) -> Path:
     return cfg
 
 
+def sigint_after(args, tmp_path: Path, log_name: str, seconds: float, expect: str) -> set[int]:
+    """Start a command, wait until its two workers run for ``seconds``, send SIGINT to the main process
+    and check it exits with 130 without a traceback, saying ``expect``; returns the worker pids."""
+    proc = start(args, tmp_path, log_name)
+    workers = wait_for_workers(proc, 2)
+    time.sleep(seconds)
+    os.kill(proc.pid, signal.SIGINT)
+    assert proc.wait(timeout=60) == 130
+    text = (tmp_path / log_name).read_text()
+    assert "Traceback" not in text and expect in text
+    return workers
+
+
 @pytest.mark.slow
 def test_sigint_to_sweep_stops_cleanly_and_keeps_no_partial_cell(tmp_path):
     out = tmp_path / "sw"
-    proc = start(["sweep", _sweep_config(tmp_path, 2000), "--out", out, "--workers", "2", "--no-progress"],
-                 tmp_path, "sweep.log")
-    workers = wait_for_workers(proc, 2)
-    time.sleep(2)
-    os.kill(proc.pid, signal.SIGINT)
-    assert proc.wait(timeout=60) == 130
-    text = (tmp_path / "sweep.log").read_text()
-    assert "Traceback" not in text and "interrupted" in text
+    workers = sigint_after(["sweep", _sweep_config(tmp_path, 2000), "--out", out, "--workers", "2", "--no-progress"],
+                           tmp_path, "sweep.log", 2, "interrupted")
     assert not list((out / "cells").glob("*.json"))  # the interrupted cell is redone next time, not kept half-done
     time.sleep(1)
     assert not any(alive(p) for p in workers)
@@ -146,14 +153,9 @@ def test_sigint_to_sweep_stops_cleanly_and_keeps_no_partial_cell(tmp_path):
 @pytest.mark.slow
 def test_sigint_to_eval_writes_the_finished_episodes(tmp_path):
     out = tmp_path / "ev"
-    proc = start(["eval", "--policy", "rarl-k2-conservative", "--episodes", "2000", "--workers", "2",
-                  "--chunk-size", "2", "--no-progress", "--out", out], tmp_path, "eval.log")
-    workers = wait_for_workers(proc, 2)
-    time.sleep(4)
-    os.kill(proc.pid, signal.SIGINT)
-    assert proc.wait(timeout=60) == 130
-    text = (tmp_path / "eval.log").read_text()
-    assert "Traceback" not in text and "interrupted by SIGINT" in text
+    workers = sigint_after(["eval", "--policy", "rarl-k2-conservative", "--episodes", "2000", "--workers", "2",
+                            "--chunk-size", "2", "--no-progress", "--out", out], tmp_path, "eval.log", 4,
+                           "interrupted by SIGINT")
     summary = json.loads((out / "summary.json").read_text())
     assert summary["interrupted"]["signal"] == "SIGINT" and 0 < summary["episodes"] < 2000
     with open(out / "episodes.csv", newline="") as f:
