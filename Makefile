@@ -1,8 +1,19 @@
 # The two set-up commands of the README: `make demo` and `make test`.
+#
+# They install into a project virtual environment (.venv, created on first use) unless one is already
+# active (VIRTUAL_ENV set), so they work on a Debian/Ubuntu system python3 (PEP 668 refuses a plain
+# `pip install` there), on pyenv and in CI alike. PYTHON picks the interpreter that creates the venv.
 PYTHON ?= python3
-PIP ?= $(PYTHON) -m pip
 
-.PHONY: install system-deps demo test bench
+ifdef VIRTUAL_ENV
+VENV := $(VIRTUAL_ENV)
+else
+VENV := .venv
+endif
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.safemanip-installed
+
+.PHONY: install system-deps demo test bench clean-venv
 
 # Mesa's EGL for headless offscreen rendering (MUJOCO_GL=egl). Skipped when already present or not root.
 system-deps:
@@ -11,14 +22,25 @@ system-deps:
 		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libegl1 libgl1-mesa-dri >/dev/null; \
 	else echo "note: install libegl1 and libgl1-mesa-dri for rendering (or run demos with --no-video)"; fi
 
-install: system-deps
-	$(PIP) install -q -e ".[dev]"
+$(BIN)/python:
+	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "safemanip needs Python 3.11 or newer: make PYTHON=python3.11 ...")'
+	@$(PYTHON) -m venv $(VENV) || { echo "could not create $(VENV): on Debian/Ubuntu install the venv module (apt-get install python3-venv), or activate a virtual environment first"; exit 1; }
+
+# reinstalled when the project's dependencies change
+$(STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install -q -e ".[dev]"
+	@touch $(STAMP)
+
+install: system-deps $(STAMP)
 
 demo: install
-	safemanip demo
+	$(BIN)/safemanip demo
 
 test: install
-	$(PYTHON) -m pytest -q
+	$(BIN)/python -m pytest -q
 
 bench: install
-	$(PYTHON) benchmarks/env_throughput.py
+	$(BIN)/python benchmarks/env_throughput.py
+
+clean-venv:
+	rm -rf .venv

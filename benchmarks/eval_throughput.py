@@ -20,7 +20,7 @@ import numpy as np
 
 from safemanip.env.observation import observation_dim
 from safemanip.evaluation.parallel import EvalSpec, run_local, run_ray
-from safemanip.selection.selectors import SelectorOptions
+from safemanip.evaluation.registry import SelectorOptions
 
 
 def random_actor(k: int, hidden=(256, 256, 256), seed: int = 0) -> list[np.ndarray]:

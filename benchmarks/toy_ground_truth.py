@@ -4,12 +4,12 @@ exact grid solution (sign agreement, false-safe both ways, rollout precision): t
     python benchmarks/toy_ground_truth.py --out runs/toy [--minutes 3] [--set gamma=0.998] [--fine]
     python benchmarks/toy_ground_truth.py --eval-only tests/data/toy_reach_avoid/model.safetensors
 
-Same as ``python -m safemanip.rl.toy``; the defaults are the settings of the shipped test model
+Same as ``python -m safemanip.toy``; the defaults are the settings of the shipped test model
 (tests/data/toy_reach_avoid/README.md has its exact command and numbers). One training process plus
 one rollout worker, one torch thread.
 """
 
-from safemanip.rl.toy import main
+from safemanip.toy.oracle import main
 
 if __name__ == "__main__":
     raise SystemExit(main())

@@ -168,7 +168,7 @@ def test_validation_lists_every_problem_before_any_work(tmp_path):
     with pytest.raises(EvalConfigError, match="--vlm-cache-only needs --vlm-cache"):
         prepare(EvalRequest(policy=pol, n_objects=3, selector="dynamic-vlm", vlm_backend="openai",
                             vlm_cache_only=True))
-    with pytest.raises(EvalConfigError, match=r"--n-objects must be 0\.\.8, got 9"):
+    with pytest.raises(EvalConfigError, match=r"a scene holds at most 8 objects, got a count of 9"):
         prepare(EvalRequest(policy=pol, semantics="9 fragile", selector="dynamic-knn"))
     ok = prepare(EvalRequest(policy=pol))  # k == N: the full-state layout by default
     assert ok.spec.selector == "full" and ok.n_objects == 2 and ok.spec.constraints == "conservative"

@@ -7,10 +7,10 @@ from safemanip.env.observation import ROBOT_DIM, SLOT_DIM, SceneState, observati
 from safemanip.rl.numpy_actor import NumpyActor
 from safemanip.selection.base import SceneView
 from safemanip.selection.reducer import DUMMY_POSITIONS, Reducer, order_by_distance
-from safemanip.selection.selectors import (CONSTRAINT_SELECTORS, OBJECT_SELECTORS, ConservativeConstraints,
-                                           DynamicKNN, FullSelector, GroundTruthConstraints, PrivilegedSelector,
-                                           SelectorOptions, StaticKNN, make_constraint_selector,
-                                           make_object_selector)
+from safemanip.evaluation.registry import (CONSTRAINT_SELECTORS, OBJECT_SELECTORS, SelectorOptions,
+                                           make_constraint_selector, make_object_selector)
+from safemanip.selection.selectors import (ConservativeConstraints, DynamicKNN, FullSelector, GroundTruthConstraints,
+                                           PrivilegedSelector, StaticKNN)
 
 BOX = np.array([0.0, 0.0, 0.035])
 

@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from safemanip.rl import toy
-from safemanip.rl.toy import SPEC, ToyReachAvoidEnv
+from safemanip.toy import oracle as toy
+from safemanip.toy.system import SPEC, ToyReachAvoidEnv
 
 MODEL = Path(__file__).parent / "data" / "toy_reach_avoid" / "model.safetensors"
 
@@ -125,7 +125,7 @@ def test_shipped_model_is_small_and_complete():
     assert MODEL.stat().st_size < 1_000_000
     actor, critic, meta = toy.load_model(MODEL)
     assert len(critic.heads) == 2 and meta["train_config"]["algorithm"] == "rarl"
-    assert meta["train_config"]["env_factory"] == toy.TOY_FACTORY and meta["command"]
+    assert meta["train_config"]["env_factory"] == "safemanip.rl.toy:ToyReachAvoidEnv" and meta["command"]
 
 
 def test_shipped_model_against_the_grid(grid, states):
@@ -149,7 +149,7 @@ def _train_synchronously(cfg, total_env_steps: int, n_envs: int = 4):
     import torch
 
     from safemanip.rl.buffer import ReplayBuffer
-    from safemanip.rl.collector import env_factory
+    from safemanip.rl.envs import make_env as env_factory
     from safemanip.rl.learner import Learner
     from safemanip.rl.networks import actor_arrays
     from safemanip.rl.numpy_actor import NumpyActor

@@ -98,7 +98,7 @@ def run_demo(out_dir: str | Path = "demo_output", controller: str = "policy", po
         from safemanip.evaluation.episode import run_episode
         from safemanip.rl.checkpoint import load_policy, resolve_policy
         from safemanip.selection.reducer import Reducer
-        from safemanip.selection.selectors import make_constraint_selector, make_object_selector
+        from safemanip.evaluation.registry import make_constraint_selector, make_object_selector
 
         actor, meta = load_policy(policy)
         k = int(meta["k"])

@@ -53,6 +53,14 @@ def _stat(selector, field: str) -> int:
     return int(getattr(stats, field, 0)) if stats is not None else 0
 
 
+def _breaker_open(*selectors) -> str:
+    """"yes" when a selector's semantic backend has its circuit breaker open (it answers with the fallback
+    for the rest of the run), "no" when it is closed, "" when no selector has a guarded backend."""
+    states = [getattr(s, "backend", None) for s in selectors]
+    states = [b.status()["breaker_open"] for b in states if callable(getattr(b, "status", None))]
+    return "" if not states else ("yes" if any(states) else "no")
+
+
 def run_episode(env, actor: Callable[[np.ndarray], np.ndarray], reducer: Reducer, object_selector: ObjectSelector,
                 constraint_selector: ConstraintSelector, seed: int, *, builder: EnvViewBuilder | None = None,
                 after_reset: Callable | None = None, on_step: Callable | None = None) -> dict:
@@ -125,4 +133,5 @@ def run_episode(env, actor: Callable[[np.ndarray], np.ndarray], reducer: Reducer
         "object_fallbacks": _stat(object_selector, "fallbacks") - q0[1],
         "constraint_queries": _stat(constraint_selector, "queries") - q0[2],
         "constraint_fallbacks": _stat(constraint_selector, "fallbacks") - q0[3],
+        "vlm_breaker_open": _breaker_open(object_selector, constraint_selector),
     }

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import csv
 import json
+import math
+import signal
 import time
 from collections import Counter
 from dataclasses import dataclass, fields
@@ -27,14 +29,17 @@ from pathlib import Path
 import numpy as np
 
 from safemanip.evaluation.episode import CATEGORIES, CATEGORY_LABELS, SAFETY_VIOLATIONS
-from safemanip.evaluation.parallel import BACKENDS, EvalSpec, run_episodes
+from safemanip.evaluation.parallel import BACKENDS, EvalSpec, PartialRun, run_episodes
 from safemanip.evaluation.stats import rate_line, wilson_interval
-from safemanip.selection.selectors import (CONSTRAINT_SELECTORS, DEFAULT_INTERVAL, OBJECT_SELECTORS, USES_VLM,
-                                           SelectorOptions)
+from safemanip.evaluation.registry import CONSTRAINT_SELECTORS, OBJECT_SELECTORS, USES_VLM, SelectorOptions
+from safemanip.selection.selectors import DEFAULT_INTERVAL
+from safemanip.semantics.base import VLM_BACKENDS
+from safemanip.util.files import OutputLock, atomic_open, atomic_write_text, check_output_dir
+from safemanip.util.procs import stop_on_signals
 
 JUDGES = {"ground-truth": "ground_truth", "conservative": "conservative"}
-VLM_BACKENDS = ("semantic", "openai")
 SEED_STRIDE = 100_000
+MAX_EPISODE_STEPS = 100_000
 METRIC_SELECTORS = ("static-knn", "dynamic-knn", "privileged", "dynamic-vlm")
 
 
@@ -67,6 +72,10 @@ class EvalRequest:
     vlm_base_url: str | None = None
     vlm_cache: str | None = None
     vlm_cache_only: bool = False
+    vlm_timeout: float | None = None
+    vlm_episode_budget: float | None = None
+    vlm_run_budget: float | None = None
+    vlm_max_failures: int | None = None
     max_episode_steps: int | None = None
     chunk_size: int | None = None
     progress: bool = False
@@ -95,9 +104,14 @@ def _policy_problems(req: EvalRequest, problems: list[str]):
     if missing:
         problems.append(f"--policy {req.policy}: its metadata lacks {missing}; re-export it with safemanip train")
         return None, None
-    if "factory" in meta["env_kwargs"]:
-        problems.append(f"--policy {req.policy} was trained on {meta['env_kwargs']['factory']}, not the slide-out "
-                        f"task; only slide-out policies can be evaluated here")
+    env_kwargs = meta["env_kwargs"]
+    if not isinstance(env_kwargs, dict) or "factory" in env_kwargs or env_kwargs.get("env", "slide-out") != "slide-out":
+        trained_on = env_kwargs.get("env", env_kwargs.get("factory")) if isinstance(env_kwargs, dict) else env_kwargs
+        problems.append(f"--policy {req.policy} was trained on {trained_on!r}, not the slide-out task; only "
+                        f"slide-out policies can be evaluated here")
+        return None, None
+    if not isinstance(meta["k"], int) or isinstance(meta["k"], bool) or not 0 <= meta["k"] <= 8:
+        problems.append(f"--policy {req.policy}: its metadata has k={meta['k']!r}, not a slot count 0..8")
         return None, None
     if meta["constraints"] not in ("conservative", "all"):
         problems.append(f"--policy {req.policy}: unknown constraint set {meta['constraints']!r} in its metadata")
@@ -143,13 +157,25 @@ def prepare(req: EvalRequest) -> Prepared:
                         f"{', '.join(sorted(CONSTRAINT_SELECTORS))}")
     if req.judge not in JUDGES:
         problems.append(f"unknown --judge {req.judge!r}; choose one of {', '.join(JUDGES)}")
-    if req.max_episode_steps is not None and req.max_episode_steps < 1:
-        problems.append(f"--max-episode-steps must be >= 1, got {req.max_episode_steps}")
+    if req.max_episode_steps is not None and not 1 <= req.max_episode_steps <= MAX_EPISODE_STEPS:
+        problems.append(f"--max-episode-steps must be 1..{MAX_EPISODE_STEPS}, got {req.max_episode_steps}")
+    if req.out is not None:
+        problems += check_output_dir(req.out)
+    for flag, value, lo, hi in (("--vlm-timeout", req.vlm_timeout, 0, 600),
+                                ("--vlm-episode-budget", req.vlm_episode_budget, 0, 86_400),
+                                ("--vlm-run-budget", req.vlm_run_budget, 0, 30 * 86_400)):
+        if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and lo < value <= hi):
+            problems.append(f"{flag} must be a number of seconds in ({lo}, {hi}], got {value!r}")
+    if req.vlm_max_failures is not None and not 1 <= req.vlm_max_failures <= 10_000:
+        problems.append(f"--vlm-max-failures must be 1..10000, got {req.vlm_max_failures}")
 
     uses_vlm = req.selector in USES_VLM or (req.constraints or "") in USES_VLM
     vlm_given = [f for f, v in (("--vlm-backend", req.vlm_backend), ("--vlm-model", req.vlm_model),
                                  ("--vlm-base-url", req.vlm_base_url), ("--vlm-cache", req.vlm_cache),
-                                 ("--vlm-cache-only", req.vlm_cache_only)) if v]
+                                 ("--vlm-cache-only", req.vlm_cache_only), ("--vlm-timeout", req.vlm_timeout),
+                                 ("--vlm-episode-budget", req.vlm_episode_budget),
+                                 ("--vlm-run-budget", req.vlm_run_budget),
+                                 ("--vlm-max-failures", req.vlm_max_failures)) if v]
     if vlm_given and not uses_vlm:
         problems.append(f"{', '.join(vlm_given)} only appl{'ies' if len(vlm_given) == 1 else 'y'} to "
                         f"--selector dynamic-vlm or --constraints vlm")
@@ -157,16 +183,17 @@ def prepare(req: EvalRequest) -> Prepared:
     if vlm_backend not in VLM_BACKENDS:
         problems.append(f"--vlm-backend must be one of {VLM_BACKENDS}, got {vlm_backend!r}")
     elif uses_vlm and vlm_backend == "semantic" and (req.vlm_model or req.vlm_base_url or req.vlm_cache
-                                                     or req.vlm_cache_only):
-        problems.append("--vlm-model/--vlm-base-url/--vlm-cache/--vlm-cache-only apply to --vlm-backend openai; "
-                        "the semantic backend is offline")
+                                                     or req.vlm_cache_only or req.vlm_timeout or req.vlm_episode_budget
+                                                     or req.vlm_run_budget or req.vlm_max_failures):
+        problems.append("--vlm-model/--vlm-base-url/--vlm-cache/--vlm-cache-only and the --vlm-timeout/budget/"
+                        "max-failures limits apply to --vlm-backend openai; the semantic backend is offline")
     if req.vlm_cache_only and not req.vlm_cache:
         problems.append("--vlm-cache-only needs --vlm-cache DIR (the folder of stored answers)")
 
     classes = None
     if req.semantics:
         try:
-            classes = parse_semantics(req.semantics)
+            classes = parse_semantics_checked(req.semantics)
         except ValueError as err:
             problems.append(f"--semantics: {err}")
 
@@ -212,12 +239,29 @@ def prepare(req: EvalRequest) -> Prepared:
                   "max_episode_steps": req.max_episode_steps or env_train.get("max_episode_steps", 300)}
     options = SelectorOptions(interval=req.interval, vlm_backend=vlm_backend, vlm_model=req.vlm_model,
                               vlm_base_url=req.vlm_base_url, vlm_cache=req.vlm_cache,
-                              vlm_cache_only=req.vlm_cache_only)
+                              vlm_cache_only=req.vlm_cache_only, vlm_timeout=req.vlm_timeout,
+                              vlm_episode_budget=req.vlm_episode_budget, vlm_run_budget=req.vlm_run_budget,
+                              vlm_max_failures=req.vlm_max_failures)
     constraints = req.constraints or ("conservative" if meta["constraints"] == "conservative" else "ground-truth")
     spec = EvalSpec(actor_arrays=arrays, k=k, policy_constraints=meta["constraints"], env_kwargs=env_kwargs,
                     selector=selector, constraints=constraints, options=options, pad=req.pad)
     seeds = [req.seed * SEED_STRIDE + i for i in range(req.episodes)]
     return Prepared(req, spec, meta, seeds, n, notes)
+
+
+def parse_semantics_checked(text: str) -> list[str]:
+    """``scene.config.parse_semantics`` with every count checked first (a huge count is a message, not an
+    attempt to build a list of that length)."""
+    import re
+
+    from safemanip.scene.config import MAX_OBJECTS, parse_semantics
+
+    if len(text) > 1000:
+        raise ValueError(f"{len(text)} characters is not a scene description; write e.g. '2 fragile, 3 durable'")
+    too_big = [int(n) for n in re.findall(r"\d+", text) if int(n) > MAX_OBJECTS]
+    if too_big:
+        raise ValueError(f"{text!r}: a scene holds at most {MAX_OBJECTS} objects, got a count of {too_big[0]}")
+    return parse_semantics(text)
 
 
 # ------------------------------------------------------------------------------------------ summary
@@ -252,6 +296,7 @@ def summarize(records: list[dict]) -> dict:
         "box_speed_at_success": _quantiles([r["box_speed"] for r in records if r["category"] == "success"]),
         "selector_queries": {key: int(sum(r[key] for r in records)) for key in
                              ("object_queries", "object_fallbacks", "constraint_queries", "constraint_fallbacks")},
+        "vlm_breaker_open_episodes": int(sum(r.get("vlm_breaker_open") == "yes" for r in records)),
     }
 
 
@@ -287,6 +332,9 @@ def format_summary(summary: dict, title: str) -> str:
     if q["object_queries"] or q["constraint_queries"]:
         lines.append(f"semantic queries: objects {q['object_queries']} ({q['object_fallbacks']} fell back), "
                      f"constraints {q['constraint_queries']} ({q['constraint_fallbacks']} fell back)")
+    if summary.get("vlm_breaker_open_episodes"):
+        lines.append(f"VLM circuit breaker open (fallback selectors answered) in {summary['vlm_breaker_open_episodes']} "
+                     f"of {n} episodes: the server failed repeatedly or a time budget ran out")
     return "\n".join(lines)
 
 
@@ -298,15 +346,15 @@ def title_of(desc: dict) -> str:
 
 
 def write_records(out: Path, records: list[dict], summary: dict) -> None:
+    """episodes.csv, then summary.json, each written whole to a unique temporary name and renamed."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    with open(out / "episodes.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(records[0].keys()))
-        writer.writeheader()
-        writer.writerows(records)
-    tmp = out / "summary.json.tmp"
-    tmp.write_text(json.dumps(summary, indent=1))
-    tmp.replace(out / "summary.json")
+    with atomic_open(out / "episodes.csv", "w", newline="") as f:
+        if records:
+            writer = csv.DictWriter(f, fieldnames=list(records[0].keys()))
+            writer.writeheader()
+            writer.writerows(records)
+    atomic_write_text(out / "summary.json", json.dumps(summary, indent=1))
 
 
 def read_records(path: Path) -> list[dict]:
@@ -325,20 +373,41 @@ def read_records(path: Path) -> list[dict]:
 
 
 def evaluate(req: EvalRequest) -> dict:
-    """Validate, run, summarise, write. Returns {"summary", "records", "text"}."""
+    """Validate, run, summarise, write. Returns {"summary", "records", "text"}.
+
+    ``req.out`` is locked for the run (another live process writing there is refused). On SIGINT/SIGTERM the
+    episodes finished so far are summarised and written, with ``"interrupted"`` in the summary."""
     prep = prepare(req)
+    lock = OutputLock(req.out).acquire() if req.out else None
+    try:
+        return _run_prepared(req, prep)
+    finally:
+        if lock is not None:
+            lock.release()
+
+
+def _run_prepared(req: EvalRequest, prep: Prepared) -> dict:
     start = time.perf_counter()
-    records = run_episodes(prep.spec, prep.seeds, workers=req.workers, backend=req.backend, address=req.address,
-                           chunk_size=req.chunk_size, progress=req.progress)
+    interrupted = None
+    try:
+        with stop_on_signals():
+            records = run_episodes(prep.spec, prep.seeds, workers=req.workers, backend=req.backend,
+                                   address=req.address, chunk_size=req.chunk_size, progress=req.progress)
+    except PartialRun as stop:
+        records, interrupted = stop.records, {"signal": signal.Signals(stop.signum).name, "signum": stop.signum,
+                                               "episodes_requested": len(prep.seeds)}
     wall = time.perf_counter() - start
     desc = describe(prep)
     summary = {"request": {f.name: getattr(req, f.name) for f in fields(req)}, "eval": desc,
                "policy_meta": {k: v for k, v in prep.meta.items() if k not in ("train_config",)},
-               **summarize(records), "wall_s": round(wall, 2), "episodes_per_s": round(len(records) / wall, 2),
-               "notes": prep.notes}
+               **summarize(records), "wall_s": round(wall, 2), "episodes_per_s": round(len(records) / max(wall, 1e-9), 2),
+               "notes": prep.notes, "interrupted": interrupted}
     if req.out:
         write_records(Path(req.out), records, summary)
     text = format_summary(summary, title_of(desc))
+    if interrupted:
+        text += (f"\ninterrupted by {interrupted['signal']}: {len(records)} of {len(prep.seeds)} episodes finished"
+                 + (f" and written to {req.out}" if req.out else ""))
     if prep.notes:
         text += "\n" + "\n".join(f"note: {n}" for n in prep.notes)
     return {"summary": summary, "records": records, "text": text}

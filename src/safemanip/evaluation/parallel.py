@@ -25,9 +25,11 @@ from typing import Callable, Iterator
 import numpy as np
 
 from safemanip.rl.numpy_actor import NumpyActor  # no torch import: workers start fast
-from safemanip.selection.selectors import SelectorOptions
+from safemanip.util.procs import Interrupted, die_with_parent
+from safemanip.evaluation.registry import SelectorOptions
 
 BACKENDS = ("local", "ray")
+"""The compute backends by name (``--backend``)."""
 _ONE_THREAD = {v: "1" for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
 
 
@@ -63,7 +65,7 @@ def run_chunk(spec: EvalSpec, seeds: list[int]) -> list[dict]:
     from safemanip.env.slide_out import SlideOutEnv
     from safemanip.evaluation.episode import run_episode
     from safemanip.selection.reducer import Reducer
-    from safemanip.selection.selectors import make_constraint_selector, make_object_selector
+    from safemanip.evaluation.registry import make_constraint_selector, make_object_selector
     from safemanip.selection.view import EnvViewBuilder
 
     with one_blas_thread():
@@ -117,14 +119,48 @@ def _env_vars(values: dict) -> Iterator[None]:
                 os.environ[k] = v
 
 
+class PartialRun(Exception):
+    """A run stopped by SIGINT/SIGTERM: the records of the episodes finished before it, in seed order."""
+
+    def __init__(self, records: list[dict], signum: int):
+        super().__init__(f"stopped by signal {signum} after {len(records)} episodes")
+        self.records, self.signum = records, signum
+
+
+_WORKER_SPEC: EvalSpec | None = None
+
+
+def _worker_init(parent_pid: int, spec: EvalSpec) -> None:
+    """Pool worker start-up: die with the parent (kill -9 included) and keep the spec, so that tasks carry only
+    their seeds. (A task holding the weights can fill the pipe to the workers; if they are then killed, the
+    pool's feeder thread blocks on that pipe for ever and so does the shutdown.)"""
+    global _WORKER_SPEC
+    die_with_parent(parent_pid)
+    _WORKER_SPEC = spec
+
+
+def _run_chunk_in_worker(seeds: list[int]) -> list[dict]:
+    return run_chunk(_WORKER_SPEC, seeds)
+
+
 def run_local(spec: EvalSpec, seeds: list[int], workers: int = 2, chunk_size: int | None = None,
               on_chunk: Callable[[int], None] | None = None) -> list[dict]:
-    """In this process for one worker, else a spawn pool of ``workers`` processes."""
+    """In this process for one worker, else a spawn pool of ``workers`` processes. An ``Interrupted``
+    (SIGINT/SIGTERM) stops the workers and raises ``PartialRun`` with the records finished so far."""
     chunks = chunk_seeds(seeds, workers, chunk_size)
     records: list[dict] = []
+    try:
+        _run_local(spec, chunks, workers, on_chunk, records)
+    except Interrupted as stop:
+        raise PartialRun(_in_seed_order(records, [s for c in chunks for s in c], partial=True), stop.signum) from None
+    return _in_seed_order(records, seeds)
+
+
+def _run_local(spec, chunks, workers, on_chunk, records: list[dict]) -> None:
     if workers <= 1:
         for c in chunks:
-            records += run_chunk(spec, c)
+            part = run_chunk(spec, c)
+            records += part
             if on_chunk:
                 on_chunk(len(c))
     else:
@@ -134,20 +170,23 @@ def run_local(spec: EvalSpec, seeds: list[int], workers: int = 2, chunk_size: in
         # instead of being replaced silently and hanging the run.
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
-        with _env_vars(_ONE_THREAD), ProcessPoolExecutor(min(workers, len(chunks)),
-                                                         mp_context=mp.get_context("spawn")) as pool:
-            futures = [pool.submit(run_chunk, spec, c) for c in chunks]
-            try:
-                for fut in as_completed(futures):
-                    part = fut.result()
-                    records += part
-                    if on_chunk:
-                        on_chunk(len(part))
-            except BaseException:
-                for f in futures:  # do not keep simulating after a failure or Ctrl-C
-                    f.cancel()
-                raise
-    return _in_seed_order(records, seeds)
+        with _env_vars(_ONE_THREAD):
+            pool = ProcessPoolExecutor(min(workers, len(chunks)), mp_context=mp.get_context("spawn"),
+                                       initializer=_worker_init, initargs=(os.getpid(), spec))
+        try:
+            futures = [pool.submit(_run_chunk_in_worker, c) for c in chunks]
+            for fut in as_completed(futures):
+                part = fut.result()
+                records += part
+                if on_chunk:
+                    on_chunk(len(part))
+        except BaseException:
+            # do not keep simulating after a failure or a stop: cancel what has not started, end the workers
+            for proc in list(getattr(pool, "_processes", {}).values()):
+                proc.kill()
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+        pool.shutdown(wait=True)
 
 
 def run_ray(spec: EvalSpec, seeds: list[int], workers: int = 2, address: str | None = None,
@@ -168,27 +207,31 @@ def run_ray(spec: EvalSpec, seeds: list[int], workers: int = 2, address: str | N
         else:
             ray.init(num_cpus=workers, **kwargs)
         started = True
+    records: list[dict] = []
     try:
         remote = ray.remote(num_cpus=1)(run_chunk)
         spec_ref = ray.put(spec)  # one copy of the weights in the object store, shared by all tasks
         chunks = chunk_seeds(seeds, max(workers, int(ray.cluster_resources().get("CPU", workers))), chunk_size)
         pending = [remote.remote(spec_ref, c) for c in chunks]
-        records: list[dict] = []
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
             part = ray.get(done[0])
             records += part
             if on_chunk:
                 on_chunk(len(part))
+    except Interrupted as stop:
+        for ref in pending:
+            ray.cancel(ref, force=True)
+        raise PartialRun(_in_seed_order(records, seeds, partial=True), stop.signum) from None
     finally:
         if started:  # only shut down (or disconnect from) what this call started
             ray.shutdown()
     return _in_seed_order(records, seeds)
 
 
-def _in_seed_order(records: list[dict], seeds: list[int]) -> list[dict]:
+def _in_seed_order(records: list[dict], seeds: list[int], partial: bool = False) -> list[dict]:
     by_seed = {r["seed"]: r for r in records}
-    return [by_seed[int(s)] for s in seeds]
+    return [by_seed[int(s)] for s in seeds if not partial or int(s) in by_seed]
 
 
 def run_episodes(spec: EvalSpec, seeds: list[int], *, workers: int = 2, backend: str = "local",

@@ -38,6 +38,9 @@ from dataclasses import asdict, dataclass
 from importlib import resources
 from pathlib import Path
 
+from safemanip.util.files import OutputLock, atomic_write_text, check_output_dir
+from safemanip.util.procs import Interrupted, stop_on_signals
+
 POLICY_NAME = re.compile(r"(?P<algorithm>[a-z0-9]+)-k(?P<k>\d+)-(?P<constraints>conservative|all)$")
 FIGURES = ("fig5", "fig6", "table")
 DEFAULT_ROOT = Path("results/sweeps")
@@ -103,7 +106,7 @@ def load_config(name_or_path: str) -> dict:
 
 def _validate(cfg: dict, where: str) -> None:
     from safemanip.evaluation.harness import JUDGES
-    from safemanip.selection.selectors import CONSTRAINT_SELECTORS, OBJECT_SELECTORS
+    from safemanip.evaluation.registry import CONSTRAINT_SELECTORS, OBJECT_SELECTORS
 
     problems = []
     for key in ("name", "figure", "episodes", "policies", "n_objects", "judge"):
@@ -135,9 +138,9 @@ def _validate(cfg: dict, where: str) -> None:
                                                             for sem in e.get("semantics", [])]
     for sem in all_semantics:
         if sem is not None:
-            from safemanip.scene.config import parse_semantics
+            from safemanip.evaluation.harness import parse_semantics_checked
             try:
-                parse_semantics(sem)
+                parse_semantics_checked(sem) if isinstance(sem, str) else parse_semantics_checked(str(sem))
             except ValueError as err:
                 problems.append(str(err))
     extra = cfg.get("k_equals_n_selector")
@@ -154,7 +157,7 @@ def cells_of(cfg: dict, episodes: int | None = None) -> list[Cell]:
     objects (so one config can pair each N with its own semantics). Duplicates (k == N cells that all
     map to ``k_equals_n_selector``) are merged.
     """
-    from safemanip.evaluation.harness import USES_VLM
+    from safemanip.evaluation.registry import USES_VLM
     from safemanip.scene.config import parse_semantics
     from safemanip.semantics.semantic_backend import DEFAULT_EXAMPLES
 
@@ -197,15 +200,29 @@ def _done(path: Path, cell: Cell) -> bool:
 def run_sweep(name: str, *, episodes: int | None = None, out: str | None = None, workers: int = 2,
               backend: str = "local", address: str | None = None, render_only: bool = False,
               progress: bool = True, log=print) -> dict:
-    """Run the cells not done yet, then render. Returns {"ran", "done", "skipped", "failed", "figure", "table"}."""
+    """Run the cells not done yet, then render. Returns {"ran", "done", "skipped", "failed", "interrupted",
+    "figure", "table"}; "interrupted" is the signal number when SIGINT/SIGTERM stopped the run (the cells
+    finished before it are kept, the one in progress is redone next time).
+
+    The output folder is checked and locked before any cell runs."""
     cfg = load_config(name)
     root = Path(out) if out else DEFAULT_ROOT / cfg["name"]
-    status = {"ran": [], "done": [], "skipped": [], "failed": []}
-    if not render_only:
-        with _ray_session(backend, address, workers):
-            _run_cells(cfg, cells_of(cfg, episodes), root, status, workers, backend, address, progress, log)
-    results = load_results(root)
-    status["figure"], status["table"] = render(cfg, results, root)
+    problems = check_output_dir(root)
+    if problems:
+        raise SweepError(problems[0])
+    status = {"ran": [], "done": [], "skipped": [], "failed": [], "interrupted": None}
+    with OutputLock(root):
+        if not render_only:
+            try:
+                with stop_on_signals(), _ray_session(backend, address, workers):
+                    _run_cells(cfg, cells_of(cfg, episodes), root, status, workers, backend, address, progress, log)
+            except Interrupted as stop:
+                status["interrupted"] = stop.signum
+            if status["interrupted"]:
+                log(f"interrupted: {len(status['ran'])} cell(s) finished in this run are kept; run the same command "
+                    f"to continue")
+        results = load_results(root)
+        status["figure"], status["table"] = render(cfg, results, root)
     log(f"wrote {status['table']}" + (f" and {status['figure']}" if status["figure"] else ""))
     if status["skipped"]:
         log(f"{len(status['skipped'])} cell(s) skipped for missing policies (train commands above)")
@@ -236,6 +253,7 @@ def _ray_session(backend: str, address: str | None, workers: int):
 
 def _run_cells(cfg, cells, root, status, workers, backend, address, progress, log) -> None:
     from safemanip.evaluation.harness import EvalRequest, evaluate
+    from safemanip.rl.checkpoint import resolve_policy
 
     cells_dir = root / "cells"
     log(f"sweep {cfg['name']}: {len(cells)} cells, {cells[0].episodes if cells else 0} episodes each -> {root}")
@@ -246,11 +264,14 @@ def _run_cells(cfg, cells, root, status, workers, backend, address, progress, lo
             status["done"].append(cell.id)
             log(f"{tag}: done already")
             continue
-        if not Path(cell.policy).exists():
+        # a relative path such as policies/rarl-k2-conservative.safetensors falls back to the shipped policy
+        # of that name, so a shipped sweep runs from any working folder
+        policy = Path(cell.policy) if Path(cell.policy).is_absolute() else resolve_policy(cell.policy)
+        if not policy.exists():
             status["skipped"].append({"cell": cell.id, "policy": cell.policy, "train": cell.train_command()})
             log(f"{tag}: skipped, no policy file {cell.policy}; make it with:\n    {cell.train_command()}")
             continue
-        req = EvalRequest(policy=cell.policy, n_objects=cell.n_objects, semantics=cell.semantics,
+        req = EvalRequest(policy=str(policy), n_objects=cell.n_objects, semantics=cell.semantics,
                           selector=cell.selector, constraints=cell.constraints, judge=cell.judge,
                           episodes=cell.episodes, seed=cell.seed, workers=workers, backend=backend,
                           address=address, out=str(cells_dir / cell.id), progress=progress)
@@ -261,10 +282,11 @@ def _run_cells(cfg, cells, root, status, workers, backend, address, progress, lo
             status["failed"].append({"cell": cell.id, "error": str(err)})
             log(f"{tag}: failed: {err}")
             continue
+        if report["summary"].get("interrupted"):  # a partial cell is not a result: redo it next time
+            status["interrupted"] = report["summary"]["interrupted"]["signum"]
+            return
         summary = {k: v for k, v in report["summary"].items() if k not in ("request", "policy_meta")}
-        tmp = result_path.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps({"cell": asdict(cell), "summary": summary}, indent=1))
-        tmp.replace(result_path)
+        atomic_write_text(result_path, json.dumps({"cell": asdict(cell), "summary": summary}, indent=1))
         status["ran"].append(cell.id)
         s = summary["success"]
         log(f"{tag}: success {100 * s['rate']:.1f}% [{100 * s['ci95'][0]:.1f}, {100 * s['ci95'][1]:.1f}]")
@@ -273,7 +295,7 @@ def _run_cells(cfg, cells, root, status, workers, backend, address, progress, lo
 def _check_policy_name(cell: Cell) -> None:
     from safemanip.rl.checkpoint import load_policy
 
-    _, meta = load_policy(cell.policy)
+    _, meta = load_policy(cell.policy)  # resolves shipped policies by file name
     if int(meta.get("k", -1)) != cell.k or meta.get("constraints") != cell.policy_constraints:
         raise SweepError(f"{cell.policy} holds a k={meta.get('k')} {meta.get('constraints')} policy, but its name "
                          f"says k={cell.k} {cell.policy_constraints}: rename the file or fix the sweep")
@@ -387,8 +409,8 @@ def _plot_fig5(cfg: dict, results: list[dict], path: Path) -> None:
     fig, axes = plt.subplots(1, max(1, len(panels)), figsize=(5 * max(1, len(panels)), 4), sharey=True, squeeze=False)
     for ax, sel in zip(axes[0], panels or ["full"]):
         for k in ks:
-            pts = sorted((r["cell"]["n_objects"], r["summary"]) for r in results
-                         if r["cell"]["k"] == k and (r["cell"]["selector"] == sel or r in full))
+            pts = sorted(((r["cell"]["n_objects"], r["summary"]) for r in results
+                          if r["cell"]["k"] == k and (r["cell"]["selector"] == sel or r in full)), key=lambda p: p[0])
             if not pts:
                 continue
             xs = [n for n, _ in pts]
@@ -449,7 +471,7 @@ def render(cfg: dict, results: list[dict], root: Path) -> tuple[str | None, str]
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     table = root / f"{cfg['name']}.md"
-    table.write_text(markdown_table(cfg, results))
+    atomic_write_text(table, markdown_table(cfg, results))
     figure = None
     if results and cfg["figure"] in ("fig5", "fig6"):
         figure = root / f"{cfg['name']}.png"

@@ -2,34 +2,45 @@
 
 A checkpoint is a folder ``checkpoint/`` holding ``state.safetensors`` (networks, targets, optimiser
 moments), ``replay.npz`` and ``meta.json`` (config and counters). It is written as
-``checkpoint.new/`` and swapped in with renames, so a run killed at any moment leaves either the old
-or the new checkpoint whole. Nothing is ever unpickled.
+``checkpoint.new/`` and swapped in with renames, so a run killed at any moment leaves the old or the
+new checkpoint whole; ``recover_checkpoint`` resumes from the newest complete one. Nothing is ever
+unpickled, and every .safetensors file is checked (``check_safetensors``) before it is loaded.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
+import struct
 from pathlib import Path
 
 import numpy as np
 from safetensors.numpy import load_file as load_numpy
 from safetensors.numpy import save_file as save_numpy
 
+from safemanip.util.files import atomic_path, atomic_write_text
+
 POLICY_FORMAT = "safemanip-policy/1"
 
 
+CHECKPOINT_NAMES = ("checkpoint.new", "checkpoint", "checkpoint.old")
+
+
 def write_checkpoint(run_dir: Path, tensors: dict, replay, meta: dict) -> Path:
+    """Write ``checkpoint.new/`` (meta.json last: its presence marks the folder complete), then swap it in:
+    checkpoint -> checkpoint.old, checkpoint.new -> checkpoint. ``recover_checkpoint`` finishes an
+    interrupted swap, whichever rename it stopped between."""
     from safetensors.torch import save_file
 
     run_dir = Path(run_dir)
-    new, cur, old = run_dir / "checkpoint.new", run_dir / "checkpoint", run_dir / "checkpoint.old"
+    new, cur, old = (run_dir / n for n in ("checkpoint.new", "checkpoint", "checkpoint.old"))
     shutil.rmtree(new, ignore_errors=True)
     new.mkdir(parents=True)
     save_file(tensors, new / "state.safetensors")
     replay.save(new / "replay.npz")
-    (new / "meta.json").write_text(json.dumps(meta, indent=1))
+    atomic_write_text(new / "meta.json", json.dumps(meta, indent=1))
     _fsync_dir(new)
     shutil.rmtree(old, ignore_errors=True)
     if cur.exists():
@@ -39,20 +50,57 @@ def write_checkpoint(run_dir: Path, tensors: dict, replay, meta: dict) -> Path:
     return cur
 
 
+def _complete_meta(path: Path) -> dict | None:
+    """The meta of a complete checkpoint folder (all three files, meta readable), else None."""
+    if not all((path / f).is_file() for f in ("meta.json", "state.safetensors", "replay.npz")):
+        return None
+    try:
+        meta = json.loads((path / "meta.json").read_text())
+        return meta if isinstance(meta, dict) and isinstance(meta.get("updates"), int) else None
+    except (OSError, ValueError):
+        return None
+
+
 def find_checkpoint(run_dir: Path) -> Path | None:
-    """The newest complete checkpoint folder of a run, if any (a crash between renames leaves .old)."""
-    for name in ("checkpoint", "checkpoint.old"):
-        path = Path(run_dir) / name
-        if (path / "meta.json").exists() and (path / "state.safetensors").exists():
-            return path
-    return None
+    """The newest complete checkpoint folder of a run (most updates), among checkpoint, checkpoint.new and
+    checkpoint.old: a crash between the renames of ``write_checkpoint`` may leave the newest in any."""
+    best, best_key = None, None
+    for name in CHECKPOINT_NAMES:
+        meta = _complete_meta(Path(run_dir) / name)
+        if meta is not None:
+            key = (meta["updates"], meta.get("env_steps", 0))
+            if best_key is None or key > best_key:
+                best, best_key = Path(run_dir) / name, key
+    return best
+
+
+def recover_checkpoint(run_dir: Path) -> Path | None:
+    """Make ``checkpoint/`` the newest complete checkpoint (finishing an interrupted swap) and remove the
+    others; returns its path, or None if the run has no complete checkpoint."""
+    run_dir = Path(run_dir)
+    newest = find_checkpoint(run_dir)
+    if newest is None:
+        return None
+    cur = run_dir / "checkpoint"
+    if newest != cur:
+        spare = run_dir / "checkpoint.stale"
+        shutil.rmtree(spare, ignore_errors=True)
+        if cur.exists():
+            os.replace(cur, spare)
+        os.replace(newest, cur)
+        shutil.rmtree(spare, ignore_errors=True)
+    for name in ("checkpoint.new", "checkpoint.old"):
+        shutil.rmtree(run_dir / name, ignore_errors=True)
+    return cur
 
 
 def read_checkpoint(path: Path):
     from safetensors.torch import load_file
 
-    meta = json.loads((Path(path) / "meta.json").read_text())
-    return load_file(Path(path) / "state.safetensors"), Path(path) / "replay.npz", meta
+    path = Path(path)
+    meta = json.loads((path / "meta.json").read_text())
+    check_safetensors(path / "state.safetensors")
+    return load_file(path / "state.safetensors"), path / "replay.npz", meta
 
 
 def _fsync_dir(path: Path) -> None:
@@ -67,9 +115,8 @@ def save_policy(path: Path, actor_arrays: list[np.ndarray], meta: dict) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tensors = {f"layer{i // 2}.{'weight' if i % 2 == 0 else 'bias'}": a for i, a in enumerate(actor_arrays)}
-    tmp = path.with_suffix(".tmp")
-    save_numpy(tensors, str(tmp), metadata={"format": POLICY_FORMAT, "meta": json.dumps(meta)})
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        save_numpy(tensors, tmp, metadata={"format": POLICY_FORMAT, "meta": json.dumps(meta)})
     return path
 
 
@@ -91,10 +138,70 @@ def resolve_policy(name_or_path: str | Path) -> Path:
     return path
 
 
-def load_policy(path: str | Path):
-    """(NumpyActor, meta) from a policy file, a shipped policy's name, or a run folder (its policy)."""
-    from safetensors import safe_open
+MAX_HEADER_BYTES = 10_000_000
+MAX_FILE_BYTES = 2_000_000_000
+_DTYPE_BYTES = {"F64": 8, "F32": 4, "F16": 2, "BF16": 2, "I64": 8, "I32": 4, "I16": 2, "I8": 1, "U8": 1, "BOOL": 1}
 
+
+def check_safetensors(path: str | Path) -> dict:
+    """Check a .safetensors file's structure without trusting it: size, an 8-byte header length that fits
+    the file, a JSON header whose tensor offsets tile the data exactly. Returns the parsed header;
+    raises PolicyFileError saying what is wrong."""
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as f:
+            head = f.read(8)
+            if len(head) < 8:
+                raise PolicyFileError(f"{path} is not a safetensors file: {size} bytes, too short for a header")
+            (n,) = struct.unpack("<Q", head)
+            if n < 2 or n > MAX_HEADER_BYTES or 8 + n > size:
+                raise PolicyFileError(f"{path} is not a valid safetensors file: header length {n} does not fit "
+                                      f"the file ({size} bytes); is it truncated or another format?")
+            if size > MAX_FILE_BYTES:
+                raise PolicyFileError(f"{path} is {size} bytes, larger than any policy or checkpoint of this package")
+            raw = f.read(n)
+    except OSError as err:
+        raise PolicyFileError(f"cannot read {path}: {err.strerror or err}") from err
+    try:
+        header = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as err:
+        raise PolicyFileError(f"{path} is not a valid safetensors file: its header is not JSON ({err})") from err
+    if not isinstance(header, dict):
+        raise PolicyFileError(f"{path} is not a valid safetensors file: its header is not a JSON object")
+    spans = []
+    for name, info in header.items():
+        if name == "__metadata__":
+            if not isinstance(info, dict) or not all(isinstance(v, str) for v in info.values()):
+                raise PolicyFileError(f"{path}: its metadata must map names to strings")
+            continue
+        try:
+            dtype, shape, (a, b) = info["dtype"], info["shape"], info["data_offsets"]
+            count = math.prod(int(s) for s in shape)
+            ok = dtype in _DTYPE_BYTES and all(isinstance(s, int) and s >= 0 for s in shape) and 0 <= a <= b \
+                and b - a == count * _DTYPE_BYTES[dtype]
+        except (KeyError, TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise PolicyFileError(f"{path}: tensor {name!r} has an invalid entry in the header: {str(info)[:200]}")
+        spans.append((a, b))
+    end = 0
+    for a, b in sorted(spans):
+        if a != end:
+            raise PolicyFileError(f"{path}: tensor data overlaps or leaves gaps; the file is damaged")
+        end = b
+    if 8 + n + end != size:
+        raise PolicyFileError(f"{path}: the header describes {end} bytes of tensor data but the file holds "
+                              f"{size - 8 - n}; the file is truncated or damaged")
+    return header
+
+
+def load_policy(path: str | Path):
+    """(NumpyActor, meta) from a policy file, a shipped policy's name, or a run folder (its policy).
+
+    The file is checked before use: a safetensors structure (``check_safetensors``), the policy format
+    tag, JSON metadata, the layer keys, shapes that chain (and match ``obs_dim``/``act_dim``/``hidden`` of
+    the metadata when given) and finite weights; any problem is a PolicyFileError saying what is wrong."""
     from safemanip.rl.numpy_actor import NumpyActor
 
     path = resolve_policy(path)
@@ -107,14 +214,41 @@ def load_policy(path: str | Path):
     if not path.exists():
         shipped = sorted(p.stem for p in SHIPPED_POLICIES.glob("*.safetensors"))
         raise PolicyFileError(f"no policy file at {path}; pass a .safetensors file or a shipped policy name: {shipped}")
-    with safe_open(str(path), framework="numpy") as f:
-        header = f.metadata() or {}
+    header = check_safetensors(path).get("__metadata__") or {}
     if header.get("format") != POLICY_FORMAT:
         raise PolicyFileError(f"{path} is not a safemanip policy (format {header.get('format')!r}, "
                               f"expected {POLICY_FORMAT!r})")
+    try:
+        meta = json.loads(header.get("meta", ""), parse_constant=_refuse_constant)
+    except ValueError as err:
+        raise PolicyFileError(f"{path}: the policy's metadata is not valid JSON ({err})") from err
+    if not isinstance(meta, dict):
+        raise PolicyFileError(f"{path}: the policy's metadata must be a JSON object")
     tensors = load_numpy(str(path))
     n_layers = len(tensors) // 2
+    expected = {f"layer{i}.{w}" for i in range(n_layers) for w in ("weight", "bias")}
+    if n_layers < 1 or set(tensors) != expected:
+        raise PolicyFileError(f"{path}: expected tensors layer0.weight, layer0.bias, ... layer{{n}}.bias, got "
+                              f"{sorted(tensors)[:8]}")
     arrays = []
+    prev = None
     for i in range(n_layers):
-        arrays += [tensors[f"layer{i}.weight"], tensors[f"layer{i}.bias"]]
-    return NumpyActor(arrays), json.loads(header["meta"])
+        w, b = tensors[f"layer{i}.weight"], tensors[f"layer{i}.bias"]
+        if w.ndim != 2 or b.shape != (w.shape[0],) or (prev is not None and w.shape[1] != prev):
+            raise PolicyFileError(f"{path}: layer {i} has shapes weight {w.shape} / bias {b.shape} that do not chain")
+        if w.dtype.kind != "f" or not (np.isfinite(w).all() and np.isfinite(b).all()):
+            raise PolicyFileError(f"{path}: layer {i} holds non-finite (NaN or infinite) or non-float weights; "
+                                  "the policy cannot be used")
+        prev = w.shape[0]
+        arrays += [w, b]
+    dims = {"obs_dim": tensors["layer0.weight"].shape[1], "act_dim": prev,
+            "hidden": [tensors[f"layer{i}.weight"].shape[0] for i in range(n_layers - 1)]}
+    wrong = [f"{key} {meta[key]} (the weights say {value})" for key, value in dims.items()
+             if key in meta and meta[key] != value]
+    if wrong:
+        raise PolicyFileError(f"{path}: the metadata does not match the weights: {', '.join(wrong)}")
+    return NumpyActor(arrays), meta
+
+
+def _refuse_constant(name: str):
+    raise ValueError(f"{name} is not allowed")

@@ -8,17 +8,9 @@ import time
 
 import numpy as np
 
+from safemanip.rl.envs import make_env as env_factory  # the closed env registry
+
 CHUNK = 256  # transitions per message: large enough to amortise IPC, small enough to stay fresh
-
-
-def env_factory(env_kwargs: dict):
-    """Build one env from plain kwargs; a ``factory`` key names another module:function (e.g. the toy system)."""
-    kwargs = dict(env_kwargs)
-    factory = kwargs.pop("factory", "safemanip.env.slide_out:SlideOutEnv")
-    module, name = factory.split(":")
-    import importlib
-
-    return getattr(importlib.import_module(module), name)(**kwargs)
 
 
 def run_collector(worker: int, env_kwargs: dict, seed: int, n_envs: int, data_q, weights_q, stop, counters,

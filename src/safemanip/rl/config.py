@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
+from safemanip.rl.envs import DEFAULT_ENV, ENVS, LEGACY_FACTORIES, check_env
 from safemanip.scene.config import MAX_OBJECTS
 
 
@@ -17,8 +19,9 @@ class ConfigError(ValueError):
 class TrainConfig:
     algorithm: str = "rarl"
     """'rarl' (discounted reach-avoid backup) or 'vanilla' (DDPG on the return of r = min(l, g))."""
-    n_objects: int = 2
-    """Clutter objects in every training scene (the policy's k)."""
+    k: int = 2
+    """Clutter objects in every training scene: the k object slots the policy sees (a scene at
+    deployment has N >= k objects; N is ``EvalRequest.n_objects``)."""
     constraints: str = "conservative"
     """'conservative': every object no_contact (paper F^conser); 'all': each object's constraint drawn
     uniformly from {no_contact, soft_contact, any_contact} every episode."""
@@ -47,11 +50,12 @@ class TrainConfig:
     polyak: float = 0.995
     hidden: tuple[int, ...] = (256, 256, 256)
     max_episode_steps: int = 300
-    # -- another env (e.g. the toy system, safemanip.rl.toy)
-    env_factory: str | None = None
-    """'module:Class' of the env to train on instead of the slide-out env (None: slide-out)."""
+    # -- another env (e.g. the toy system, safemanip.toy)
+    env: str = DEFAULT_ENV
+    """A name in the closed env registry ``safemanip.rl.envs.ENVS`` ('slide-out' or
+    'toy-double-integrator'); never an import path."""
     extra_env_kwargs: dict = field(default_factory=dict)
-    """Keyword arguments for ``env_factory``'s class (only with env_factory set)."""
+    """Keyword arguments for a non-default env, from the list its registry entry accepts."""
     # -- TD3 options
     twin_critics: bool = True
     """Two critics, target = min of the two (TD3)."""
@@ -81,49 +85,76 @@ class TrainConfig:
     log_every_s: float = 10.0
 
     def __post_init__(self):
+        problems = _type_problems(self)
+        if problems:  # the range checks below assume the right types
+            raise ConfigError("invalid training config:\n  - " + "\n  - ".join(problems))
         self.hidden = tuple(int(h) for h in self.hidden)
-        problems = []
         if self.algorithm not in ("rarl", "vanilla"):
             problems.append(f"algorithm must be 'rarl' or 'vanilla', got {self.algorithm!r}")
         if self.constraints not in ("conservative", "all"):
             problems.append(f"constraints must be 'conservative' or 'all', got {self.constraints!r}")
-        if not 0 <= self.n_objects <= MAX_OBJECTS:
-            problems.append(f"n_objects must be 0..{MAX_OBJECTS}, got {self.n_objects}")
+        if not 0 <= self.k <= MAX_OBJECTS:
+            problems.append(f"k must be 0..{MAX_OBJECTS}, got {self.k}")
+        if not 0 <= self.near_path_fraction <= 1:
+            problems.append(f"near_path_fraction must be in [0, 1], got {self.near_path_fraction}")
         if not 0 < self.gamma < 1:
             problems.append(f"gamma must be in (0, 1), got {self.gamma}")
         if self.gamma_start is not None and not 0 < self.gamma_start <= self.gamma:
             problems.append(f"gamma_start must be in (0, gamma], got {self.gamma_start}")
         if not 0 < self.polyak < 1:
             problems.append(f"polyak must be in (0, 1), got {self.polyak}")
+        if not 0 < self.learning_rate <= 1:
+            problems.append(f"learning_rate must be in (0, 1], got {self.learning_rate}")
         if self.batch_size < 1 or self.buffer_size < self.batch_size:
             problems.append("batch_size must be >= 1 and buffer_size >= batch_size")
-        if self.total_env_steps < 1 or (self.minutes is not None and self.minutes <= 0):
-            problems.append("the budget must be positive: total_env_steps >= 1 and minutes > 0 (or None)")
+        for name, hi in LIMITS.items():
+            if getattr(self, name) > hi:
+                problems.append(f"{name} must be at most {hi:,}, got {getattr(self, name):,}")
+        if self.total_env_steps < 1:
+            problems.append(f"total_env_steps must be >= 1, got {self.total_env_steps}")
+        if self.minutes is not None and not 0 < self.minutes <= 60 * 24 * 365:
+            problems.append(f"minutes must be > 0 (or null for no time limit), got {self.minutes}")
+        if self.max_episode_steps < 1:
+            problems.append(f"max_episode_steps must be >= 1, got {self.max_episode_steps}")
         if self.learning_starts < self.batch_size:
             problems.append(f"learning_starts ({self.learning_starts}) must be >= batch_size ({self.batch_size})")
-        if self.env_steps_per_update <= 0 or self.n_collectors < 1 or self.envs_per_collector < 1:
-            problems.append("env_steps_per_update > 0, n_collectors >= 1 and envs_per_collector >= 1 are required")
         if self.embodiment not in ("panda", "hand"):
             problems.append(f"embodiment must be 'panda' or 'hand', got {self.embodiment!r}")
+        if self.random_steps < 0:
+            problems.append(f"random_steps must be >= 0, got {self.random_steps}")
+        if not 0 < self.env_steps_per_update <= 10_000:
+            problems.append(f"env_steps_per_update must be in (0, 10000], got {self.env_steps_per_update}")
+        if self.n_collectors < 1 or self.envs_per_collector < 1:
+            problems.append("n_collectors >= 1 and envs_per_collector >= 1 are required")
         if self.slot_order not in ("nearest", "index"):
             problems.append(f"slot_order must be 'nearest' or 'index', got {self.slot_order!r}")
-        if not self.hidden or min(self.hidden) < 1:
-            problems.append(f"hidden must list positive layer widths, got {self.hidden}")
+        if not self.hidden or min(self.hidden) < 1 or max(self.hidden) > 4096 or len(self.hidden) > 8:
+            problems.append(f"hidden must list 1..8 layer widths in 1..4096, got {list(self.hidden)}")
         if self.policy_delay < 1 or self.torch_threads < 1:
             problems.append("policy_delay and torch_threads must be >= 1")
-        if self.env_factory is not None and (not isinstance(self.env_factory, str)
-                                             or len(self.env_factory.split(":")) != 2 or "" in self.env_factory.split(":")):
-            problems.append(f"env_factory must be 'module:Class', got {self.env_factory!r}")
-        if not isinstance(self.extra_env_kwargs, dict) or (self.extra_env_kwargs and self.env_factory is None):
-            problems.append("extra_env_kwargs must be a dict, and is only used with env_factory set")
+        if self.exploration_noise < 0 or self.target_noise < 0 or self.target_noise_clip < 0:
+            problems.append("exploration_noise, target_noise and target_noise_clip must be >= 0")
+        for name in ("eval_every_s", "checkpoint_every_s", "log_every_s"):
+            if not 0 < getattr(self, name) <= 86_400:
+                problems.append(f"{name} must be in (0, 86400] seconds, got {getattr(self, name)}")
+        if not 1 <= self.eval_episodes <= 100_000:
+            problems.append(f"eval_episodes must be 1..100000, got {self.eval_episodes}")
+        if not 0 <= self.seed < 2**32:
+            problems.append(f"seed must be 0..2**32-1, got {self.seed}")
+        if not isinstance(self.out_dir, str) or not self.out_dir.strip():
+            problems.append("out_dir must be a folder path")
+        problems += check_env(self.env, self.extra_env_kwargs)
+        if self.env == DEFAULT_ENV and self.extra_env_kwargs:
+            problems.append("extra_env_kwargs apply to non-default envs only (the slide-out env takes its settings "
+                            "from k, constraints, near_path_fraction, max_episode_steps, slot_order and embodiment)")
         if problems:
             raise ConfigError("invalid training config:\n  - " + "\n  - ".join(problems))
 
     @property
     def env_kwargs(self) -> dict:
-        if self.env_factory is not None:
-            return {"factory": self.env_factory, **self.extra_env_kwargs}
-        return {"n_objects": self.n_objects, "constraints": "random" if self.constraints == "all" else "conservative",
+        if self.env != DEFAULT_ENV:
+            return {"env": self.env, **self.extra_env_kwargs}
+        return {"n_objects": self.k, "constraints": "random" if self.constraints == "all" else "conservative",
                 "near_path_fraction": self.near_path_fraction, "max_episode_steps": self.max_episode_steps,
                 "slot_order": self.slot_order, "embodiment": self.embodiment}
 
@@ -138,15 +169,74 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, data: dict) -> "TrainConfig":
+        if not isinstance(data, dict):
+            raise ConfigError(f"a training config must be a JSON object of TrainConfig fields, got {type(data).__name__}")
+        data = dict(data)
+        problems = []
+        # keys older run folders carry: the same meaning under the new name, never an import
+        if "n_objects" in data and "k" not in data:
+            data["k"] = data.pop("n_objects")
+        if "env_factory" in data:
+            factory = data.pop("env_factory")
+            if factory is None:
+                pass
+            elif factory in LEGACY_FACTORIES and "env" not in data:
+                data["env"] = LEGACY_FACTORIES[factory]
+            else:
+                problems.append(f"env_factory {factory!r} is not accepted: a config names its env from the registry "
+                                f"(key 'env'), one of {sorted(ENVS)}; nothing in a config is imported")
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:
-            raise ConfigError(f"unknown config key(s) {unknown}; known keys: {sorted(known)}")
+            problems.append(f"unknown config key(s) {unknown}; known keys: {sorted(known)}")
+        if problems:
+            raise ConfigError("invalid training config:\n  - " + "\n  - ".join(problems))
         return cls(**data)
 
     @classmethod
     def from_file(cls, path: str | Path) -> "TrainConfig":
         try:
-            return cls.from_dict(json.loads(Path(path).read_text()))
-        except json.JSONDecodeError as err:
+            text = Path(path).read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as err:
+            raise ConfigError(f"cannot read the config {path}: {err}") from err
+        try:
+            data = json.loads(text, parse_constant=_no_constant)
+        except (json.JSONDecodeError, ValueError, RecursionError) as err:
             raise ConfigError(f"{path} is not valid JSON: {err}") from err
+        return cls.from_dict(data)
+
+
+def _no_constant(name: str):
+    raise ValueError(f"{name} is not a number a config may hold")
+
+
+LIMITS = {"total_env_steps": 10**12, "buffer_size": 10**7, "batch_size": 65_536, "learning_starts": 10**9,
+          "random_steps": 10**12, "max_episode_steps": 100_000, "n_collectors": 64, "envs_per_collector": 256,
+          "torch_threads": 256, "policy_delay": 1_000}
+"""Upper bounds that keep a typo from allocating terabytes or spawning hundreds of processes."""
+
+_KINDS = {"int": (int,), "float": (int, float), "str": (str,), "bool": (bool,), "dict": (dict,)}
+
+
+def _type_problems(cfg: "TrainConfig") -> list[str]:
+    """Each field's value has its declared type (ints are ints, floats finite); tuples of ints for hidden."""
+    problems = []
+    for f in fields(cfg):
+        value = getattr(cfg, f.name)
+        optional = "| None" in f.type
+        if value is None and optional:
+            continue
+        kind = f.type.replace(" | None", "").strip()
+        if kind.startswith("tuple"):
+            if not isinstance(value, (list, tuple)) or not all(isinstance(h, int) and not isinstance(h, bool)
+                                                              for h in value):
+                problems.append(f"{f.name} must be a list of integers, got {value!r}")
+            continue
+        types = _KINDS[kind]
+        if not isinstance(value, types) or (kind != "bool" and isinstance(value, bool)):
+            problems.append(f"{f.name} must be {'an' if kind == 'int' else 'a'} {kind}"
+                            f"{' or null' if optional else ''}, got {value!r}")
+        elif kind == "float" and not math.isfinite(value):
+            problems.append(f"{f.name} must be a finite number, got {value!r}")
+    return problems
+

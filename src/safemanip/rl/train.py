@@ -4,9 +4,13 @@ evaluated, logged and checkpointed as it goes. Reads top to bottom."""
 from __future__ import annotations
 
 import csv
+import io
 import json
 import multiprocessing as mp
+import os
 import queue
+import shutil
+import signal
 import time
 from collections import Counter, deque
 from pathlib import Path
@@ -14,13 +18,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from safemanip.evaluation.rollout import evaluate_actor
 from safemanip.rl.buffer import ReplayBuffer
-from safemanip.rl.checkpoint import find_checkpoint, read_checkpoint, save_policy, write_checkpoint
-from safemanip.rl.collector import env_factory, run_collector
+from safemanip.rl.checkpoint import find_checkpoint, read_checkpoint, recover_checkpoint, save_policy, write_checkpoint
+from safemanip.rl.collector import run_collector
 from safemanip.rl.config import ConfigError, TrainConfig
+from safemanip.rl.envs import make_env
 from safemanip.rl.learner import Learner
 from safemanip.rl.networks import actor_arrays
+from safemanip.rl.rollout import evaluate_actor
+from safemanip.util.files import OutputLock, atomic_write_text, check_output_dir
+from safemanip.util.procs import run_as_worker, stop_on_signals
 
 EVAL_SEED_BASE = 1_000_000  # evaluation seeds are disjoint from every training seed
 SYNC_EVERY = 50  # learner updates between actor-weight broadcasts to the workers
@@ -52,7 +59,7 @@ class ScalarLog:
 
 def policy_meta(cfg: TrainConfig, obs_dim: int, act_dim: int, eval_result: dict | None, env_steps: int, updates: int,
                 wall_s: float, command: str | None) -> dict:
-    return {"algorithm": cfg.algorithm, "k": cfg.n_objects, "constraints": cfg.constraints, "obs_dim": obs_dim,
+    return {"algorithm": cfg.algorithm, "k": cfg.k, "constraints": cfg.constraints, "obs_dim": obs_dim,
             "act_dim": act_dim, "hidden": list(cfg.hidden), "env_kwargs": cfg.env_kwargs, "train_config": json.loads(cfg.to_json()),
             "env_steps": env_steps, "updates": updates, "wall_s": round(wall_s, 1), "eval": eval_result,
             "train_command": command}
@@ -69,22 +76,69 @@ def evaluate_now(actor, cfg: TrainConfig, episodes: int) -> dict:
     return result
 
 
-def train(cfg: TrainConfig, resume: bool = False, progress: bool = True, command: str | None = None) -> Path:
-    run_dir = Path(cfg.out_dir)
-    checkpoint = find_checkpoint(run_dir) if resume else None
+def train(cfg: TrainConfig, resume: bool = False, progress: bool = True, command: str | None = None,
+          run_dir: str | Path | None = None) -> Path:
+    """Train (or, with ``resume``, continue) the run in ``run_dir`` (default ``cfg.out_dir``).
+
+    The folder is locked for the whole run (a second process on it is refused). SIGINT/SIGTERM stop the
+    run at the next safe point: a checkpoint and ``policy.safetensors`` are written and the summary says
+    ``"interrupted"``; ``--resume`` continues from there."""
+    run_dir = Path(run_dir or cfg.out_dir)
+    problems = check_output_dir(run_dir, "--resume" if resume else "--out")
+    if problems:
+        raise ConfigError(problems[0])
+    with OutputLock(run_dir, "--resume" if resume else "--out"):
+        return _train_locked(cfg, run_dir, resume, progress, command)
+
+
+def truncate_logs(run_dir: Path, env_steps: int) -> None:
+    """Drop the log rows written after the checkpoint a run resumes from, so the logs never go backwards
+    (scalars.csv, evals.jsonl) and best.safetensors matches the resumed history."""
+    scalars = run_dir / "scalars.csv"
+    if scalars.exists():
+        with open(scalars, newline="") as f:
+            rows = list(csv.reader(f))
+        kept = rows[:1] + [r for r in rows[1:] if len(r) == 5 and r[1].isdigit() and int(r[1]) <= env_steps]
+        if len(kept) != len(rows):
+            text = io.StringIO()
+            csv.writer(text).writerows(kept)
+            atomic_write_text(scalars, text.getvalue())
+    evals = run_dir / "evals.jsonl"
+    if evals.exists():
+        kept_lines = []
+        for line in evals.read_text().splitlines():
+            try:
+                if int(json.loads(line)["env_steps"]) <= env_steps:
+                    kept_lines.append(line)
+            except (ValueError, KeyError, TypeError):
+                pass  # a torn last line from a kill
+        atomic_write_text(evals, "".join(x + "\n" for x in kept_lines))
+    best = run_dir / "best.safetensors"
+    if best.exists():
+        from safemanip.rl.checkpoint import PolicyFileError, load_policy
+        try:
+            best_steps = load_policy(best)[1].get("env_steps", 0)
+        except PolicyFileError:
+            best_steps = env_steps + 1
+        if best_steps > env_steps:  # from the discarded segment: keep it aside, not as the run's best
+            os.replace(best, run_dir / f"best.discarded-{best_steps}.safetensors")
+
+
+def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool, command: str | None) -> Path:
+    checkpoint = recover_checkpoint(run_dir) if resume else None
     if resume and checkpoint is None:
-        raise ConfigError(f"--resume: no checkpoint in {run_dir}; start a new run without --resume")
+        raise ConfigError(f"--resume: no complete checkpoint in {run_dir}; start a new run without --resume")
     if not resume and find_checkpoint(run_dir) is not None:
         raise ConfigError(f"{run_dir} already holds a run: pass --resume to continue it, or choose another --out")
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "config.json").write_text(cfg.to_json())
+    cfg.out_dir = str(run_dir)  # the folder actually written (a copied run folder is its own run)
+    atomic_write_text(run_dir / "config.json", cfg.to_json())
 
     # ---- seeding, all in one place
     rng = np.random.default_rng(cfg.seed)
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.torch_threads)
 
-    probe = env_factory(cfg.env_kwargs)
+    probe = make_env(cfg.env_kwargs)
     obs_dim, act_dim = probe.observation_space.shape[0], probe.action_space.shape[0]
     probe.close()
     learner = Learner(obs_dim, act_dim, cfg)
@@ -102,7 +156,12 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True, command
         restarts = meta.get("restarts", 0) + 1
         best = meta.get("best", best)
         rng = np.random.default_rng([cfg.seed, restarts])
+        truncate_logs(run_dir, env_steps)
         print(f"resuming {run_dir} from {env_steps} env steps / {updates} updates ({elapsed_before / 60:.1f} min)")
+    else:
+        for stale in ("scalars.csv", "evals.jsonl", "summary.json"):  # leftovers of a run killed before its first checkpoint
+            (run_dir / stale).unlink(missing_ok=True)
+        shutil.rmtree(run_dir / "tb", ignore_errors=True)
 
     # ---- rollout workers on the other core(s)
     ctx = mp.get_context("spawn")
@@ -110,11 +169,13 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True, command
     weights_qs = [ctx.Queue(maxsize=2) for _ in range(cfg.n_collectors)]
     stop = ctx.Event()
     counters = ctx.Array("q", [env_steps, updates])
-    workers = [ctx.Process(target=run_collector, daemon=True,
-                           args=(w, cfg.env_kwargs, cfg.seed + 1000 * restarts, cfg.envs_per_collector, data_q,
-                                 weights_qs[w], stop, counters, cfg.random_steps, cfg.exploration_noise,
+    workers = [ctx.Process(target=run_as_worker, daemon=True,  # the workers die with this process
+                           args=(os.getpid(), run_collector, w, cfg.env_kwargs, cfg.seed + 1000 * restarts,
+                                 cfg.envs_per_collector, data_q, weights_qs[w], stop, counters, cfg.random_steps, cfg.exploration_noise,
                                  cfg.learning_starts, cfg.env_steps_per_update))
                for w in range(cfg.n_collectors)]
+    for q in weights_qs:  # never block this process's exit on a queue whose reader is gone
+        q.cancel_join_thread()
     for w in workers:
         w.start()
 
@@ -156,82 +217,99 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True, command
         last_eval_result = result
         log.log({f"eval/{k}": v for k, v in result.items() if isinstance(v, float) and k != "wall_s"},
                 env_steps, updates, elapsed())
-        with open(run_dir / "evals.jsonl", "a") as f:
+        with open(run_dir / "evals.jsonl", "a") as f:  # one whole line per write
             f.write(json.dumps(result) + "\n")
         if result["success"] >= best["success"]:
             best = result
             save_policy(run_dir / "best.safetensors", actor_arrays(learner.actor),
                         policy_meta(cfg, obs_dim, act_dim, result, env_steps, updates, elapsed(), command))
 
-    try:
-        while True:
-            # ---- budget
-            if env_steps >= cfg.total_env_steps or (cfg.minutes is not None and elapsed() >= 60 * cfg.minutes):
-                break
-            # ---- take in whatever the workers produced
-            got = 0
+    interrupted = None
+    last_alive_check = start
+    with stop_on_signals(raise_exc=False) as stopped:
+        try:
             while True:
-                try:
-                    chunk, episodes = data_q.get(timeout=0.05 if buffer.size < cfg.learning_starts else 0.0) \
-                        if got == 0 else data_q.get_nowait()
-                except queue.Empty:
+                # ---- budget, or a stop asked for with SIGINT/SIGTERM (checked here: no update is cut in half)
+                if stopped["signum"] is not None:
+                    interrupted = signal.Signals(stopped["signum"]).name
                     break
-                buffer.add_many(chunk)
-                recent_events.extend(e for e, _ in episodes)
-                got += 1
-            env_steps = int(counters[0])
-            # ---- learn, at the configured update-to-data ratio
-            can_update = buffer.size >= cfg.learning_starts and \
-                updates < (env_steps - cfg.learning_starts) / cfg.env_steps_per_update + 1
-            if can_update:
-                gamma = cfg.gamma_at(env_steps / cfg.total_env_steps if cfg.minutes is None
-                                     else max(env_steps / cfg.total_env_steps, elapsed() / (60 * cfg.minutes)))
-                last_metrics = learner.update(buffer.sample(cfg.batch_size, rng), gamma)
-                updates += 1
-                counters[1] = updates
-                if updates % SYNC_EVERY == 0:
-                    broadcast()
-            elif got == 0:
-                time.sleep(0.001)
-            now = time.perf_counter()
-            # ---- log
-            if now - last_log >= cfg.log_every_s:
-                dt = now - last_log
-                rates = {"perf/env_steps_per_s": (env_steps - steps_at_log) / dt,
-                         "perf/updates_per_s": (updates - updates_at_log) / dt}
-                train_events = Counter(recent_events)
-                n_ep = max(1, len(recent_events))
-                rollout = {f"rollout/{k}": v / n_ep for k, v in train_events.items()}
-                log.log({**rates, **last_metrics, **rollout, "train/gamma": gamma}, env_steps, updates, elapsed())
-                if bar is not None:
-                    bar.update(env_steps - bar.n)
-                    post = {"steps/s": f"{rates['perf/env_steps_per_s']:.0f}", "upd/s": f"{rates['perf/updates_per_s']:.0f}"}
-                    if last_eval_result:
-                        post["eval"] = f"{100 * last_eval_result['success']:.0f}%"
-                    bar.set_postfix(post)
-                last_log, steps_at_log, updates_at_log = now, env_steps, updates
-            # ---- evaluate
-            if buffer.size >= cfg.learning_starts and now - last_eval >= cfg.eval_every_s:
-                run_eval()
-                last_eval = time.perf_counter()
-            # ---- checkpoint
-            if now - last_ckpt >= cfg.checkpoint_every_s:
-                save_checkpoint()
-                last_ckpt = time.perf_counter()
-    finally:
-        stop.set()
-        for w in workers:
-            w.join(timeout=5)
-            if w.is_alive():
-                w.terminate()
-        if bar is not None:
-            bar.close()
-    run_eval()
-    save_checkpoint()
-    save_policy(run_dir / "policy.safetensors", actor_arrays(learner.actor),
-                policy_meta(cfg, obs_dim, act_dim, last_eval_result, env_steps, updates, elapsed(), command))
-    log.close()
-    summary = {"env_steps": env_steps, "updates": updates, "wall_s": round(elapsed(), 1), "final_eval": last_eval_result,
-               "best_eval": best}
-    (run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
+                if env_steps >= cfg.total_env_steps or (cfg.minutes is not None and elapsed() >= 60 * cfg.minutes):
+                    break
+                # ---- take in whatever the workers produced
+                got = 0
+                while True:
+                    try:
+                        chunk, episodes = data_q.get(timeout=0.05 if buffer.size < cfg.learning_starts else 0.0) \
+                            if got == 0 else data_q.get_nowait()
+                    except queue.Empty:
+                        break
+                    buffer.add_many(chunk)
+                    recent_events.extend(e for e, _ in episodes)
+                    got += 1
+                env_steps = int(counters[0])
+                # ---- learn, at the configured update-to-data ratio
+                can_update = buffer.size >= cfg.learning_starts and \
+                    updates < (env_steps - cfg.learning_starts) / cfg.env_steps_per_update + 1
+                if can_update:
+                    gamma = cfg.gamma_at(env_steps / cfg.total_env_steps if cfg.minutes is None
+                                         else max(env_steps / cfg.total_env_steps, elapsed() / (60 * cfg.minutes)))
+                    last_metrics = learner.update(buffer.sample(cfg.batch_size, rng), gamma)
+                    updates += 1
+                    counters[1] = updates
+                    if updates % SYNC_EVERY == 0:
+                        broadcast()
+                elif got == 0:
+                    time.sleep(0.001)
+                now = time.perf_counter()
+                # ---- a worker that died (an env error, out of memory) ends the run with its exit code
+                if now - last_alive_check >= 1.0:
+                    dead = [w for w in workers if w.exitcode is not None]
+                    if dead:
+                        raise RuntimeError(f"rollout worker exited with code {dead[0].exitcode}; the run stops (its "
+                                           f"last checkpoint is kept: safemanip train --resume {run_dir})")
+                    last_alive_check = now
+                # ---- log
+                if now - last_log >= cfg.log_every_s:
+                    dt = now - last_log
+                    rates = {"perf/env_steps_per_s": (env_steps - steps_at_log) / dt,
+                             "perf/updates_per_s": (updates - updates_at_log) / dt}
+                    train_events = Counter(recent_events)
+                    n_ep = max(1, len(recent_events))
+                    rollout = {f"rollout/{k}": v / n_ep for k, v in train_events.items()}
+                    log.log({**rates, **last_metrics, **rollout, "train/gamma": gamma}, env_steps, updates, elapsed())
+                    if bar is not None:
+                        bar.update(env_steps - bar.n)
+                        post = {"steps/s": f"{rates['perf/env_steps_per_s']:.0f}",
+                                "upd/s": f"{rates['perf/updates_per_s']:.0f}"}
+                        if last_eval_result:
+                            post["eval"] = f"{100 * last_eval_result['success']:.0f}%"
+                        bar.set_postfix(post)
+                    last_log, steps_at_log, updates_at_log = now, env_steps, updates
+                # ---- evaluate
+                if buffer.size >= cfg.learning_starts and now - last_eval >= cfg.eval_every_s:
+                    run_eval()
+                    last_eval = time.perf_counter()
+                # ---- checkpoint
+                if now - last_ckpt >= cfg.checkpoint_every_s:
+                    save_checkpoint()
+                    last_ckpt = time.perf_counter()
+        finally:
+            stop.set()
+            for w in workers:
+                w.join(timeout=5)
+                if w.is_alive():
+                    w.kill()
+            if bar is not None:
+                bar.close()
+        if interrupted is None:
+            run_eval()
+        else:
+            print(f"{interrupted}: stopping; saving a checkpoint and the current policy (no final evaluation)")
+        save_checkpoint()
+        save_policy(run_dir / "policy.safetensors", actor_arrays(learner.actor),
+                    policy_meta(cfg, obs_dim, act_dim, last_eval_result, env_steps, updates, elapsed(), command))
+        log.close()
+        summary = {"env_steps": env_steps, "updates": updates, "wall_s": round(elapsed(), 1),
+                   "final_eval": last_eval_result, "best_eval": best, "interrupted": interrupted}
+        atomic_write_text(run_dir / "summary.json", json.dumps(summary, indent=1))
     return run_dir

@@ -13,6 +13,8 @@ from typing import Callable, Protocol, Sequence
 
 import numpy as np
 
+from safemanip.util.nearest import nearest_ids  # noqa: F401  (the one definition of "nearest")
+
 
 @dataclass
 class SceneView:
@@ -78,16 +80,3 @@ class SelectorStats:
         lat = np.asarray(self.latencies_s) if self.latencies_s else np.zeros(1)
         return {"queries": self.queries, "fallbacks": self.fallbacks,
                 "latency_median_s": float(np.median(lat)), "latency_p95_s": float(np.percentile(lat, 95))}
-
-
-def nearest_ids(reference: np.ndarray, positions: np.ndarray, k: int, candidates: Sequence[int] | None = None) -> list[int]:
-    """Ids of the k objects whose centres are nearest (horizontal distance) to ``reference``, nearest first.
-
-    Ties keep id order. The metric selectors pass the manipulated box's centre as ``reference``.
-    """
-    ids = np.arange(len(positions)) if candidates is None else np.asarray(list(candidates), dtype=int)
-    if len(ids) == 0:
-        return []
-    d = np.linalg.norm(positions[ids, :2] - reference[:2], axis=1)
-    order = np.argsort(d, kind="stable")
-    return [int(i) for i in ids[order][:k]]

@@ -31,6 +31,7 @@ import numpy as np
 
 from safemanip.env.observation import SceneState, build_observation, encode_constraints, observation_dim
 from safemanip.scene.catalog import CONSTRAINT_TYPES
+from safemanip.util.nearest import nearest_ids
 
 POLICY_CONSTRAINT_SETS = ("conservative", "all")
 # Back right of the table, 0.15-0.25 m apart, on the table top (object body origins sit at z = 0.0005);
@@ -40,12 +41,8 @@ DUMMY_POSITIONS = np.array([[x, y, 0.0005] for y in (0.37, 0.22) for x in (0.70,
 
 def order_by_distance(state: SceneState, ids: Sequence[int]) -> list[int]:
     """``ids`` sorted by horizontal distance from object centre to the manipulated-box centre, nearest first."""
-    ids = [int(i) for i in ids]
-    if not ids:
-        return []
-    d = np.linalg.norm(state.obj_pos[ids, :2] - state.bottom_pos[:2], axis=1)
-    order = np.lexsort((np.asarray(ids), d))  # distance first, id breaks ties
-    return [ids[j] for j in order]
+    ids = sorted(int(i) for i in ids)  # distance first, id breaks ties
+    return nearest_ids(state.bottom_pos, state.obj_pos, len(ids), candidates=ids)
 
 
 class Reducer:

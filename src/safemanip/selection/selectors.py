@@ -24,14 +24,11 @@ Constraint selectors (``CONSTRAINT_SELECTORS``), each assigning one type per obj
   ``ground-truth`` the judge's own constraint per object (from ``privileged_classes``);
   ``vlm``          ``semantics.selectors.VLMConstraintSelector`` (ConstraintVLM).
 
-The registries map a name to a factory taking a ``SelectorOptions``; adding a selector means adding
-an entry there (no import-time registration).
+The registry that maps these names (and the semantic selectors') to factories lives above both, in
+``evaluation/registry.py``: this module imports nothing from the semantics layer.
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
-from typing import Callable
 
 from safemanip.scene.catalog import CONSTRAINT_OF_CLASS
 from safemanip.selection.base import ConstraintSelector, ObjectSelector, SceneView, nearest_ids
@@ -144,67 +141,3 @@ class GroundTruthConstraints:
         if view.privileged_classes is None:
             raise ValueError("the ground-truth constraint selector needs SceneView.privileged_classes")
         return [CONSTRAINT_OF_CLASS[c] for c in view.privileged_classes]
-
-
-# ------------------------------------------------------------------------------------------ registry
-@dataclass(frozen=True)
-class SelectorOptions:
-    """Everything a selector factory may need; plain data so it can travel to worker processes."""
-
-    interval: int = DEFAULT_INTERVAL
-    vlm_backend: str = "semantic"
-    vlm_model: str | None = None
-    vlm_base_url: str | None = None
-    vlm_cache: str | None = None
-    vlm_cache_only: bool = False
-    vlm_history: int = 2
-    """Frames tiled per Dynamic-VLM query (paper: the images of the previous two queries)."""
-
-
-def _vlm_backend(opts: SelectorOptions):
-    from safemanip.semantics.commands import make_backend
-
-    return make_backend(opts.vlm_backend, model=opts.vlm_model, base_url=opts.vlm_base_url, cache_dir=opts.vlm_cache,
-                        cache_mode="cache_only" if opts.vlm_cache_only else "readwrite")
-
-
-def _dynamic_vlm(opts: SelectorOptions) -> ObjectSelector:
-    from safemanip.semantics.selectors import DynamicVLMSelector
-
-    return DynamicVLMSelector(_vlm_backend(opts), query_interval=opts.interval, history=opts.vlm_history)
-
-
-def _vlm_constraints(opts: SelectorOptions) -> ConstraintSelector:
-    from safemanip.semantics.selectors import VLMConstraintSelector
-
-    return VLMConstraintSelector(_vlm_backend(opts), name="vlm")
-
-
-OBJECT_SELECTORS: dict[str, Callable[[SelectorOptions], ObjectSelector]] = {
-    "static-knn": lambda o: StaticKNN(),
-    "dynamic-knn": lambda o: DynamicKNN(o.interval),
-    "privileged": lambda o: PrivilegedSelector(o.interval),
-    "full": lambda o: FullSelector(),
-    "dynamic-vlm": _dynamic_vlm,
-}
-
-CONSTRAINT_SELECTORS: dict[str, Callable[[SelectorOptions], ConstraintSelector]] = {
-    "conservative": lambda o: ConservativeConstraints(),
-    "ground-truth": lambda o: GroundTruthConstraints(),
-    "vlm": _vlm_constraints,
-}
-
-USES_VLM = {"dynamic-vlm", "vlm"}
-"""Names whose factory builds a semantic backend (so the --vlm-* options apply)."""
-
-
-def make_object_selector(name: str, options: SelectorOptions | None = None) -> ObjectSelector:
-    if name not in OBJECT_SELECTORS:
-        raise ValueError(f"unknown object selector {name!r}; choose one of {sorted(OBJECT_SELECTORS)}")
-    return OBJECT_SELECTORS[name](options or SelectorOptions())
-
-
-def make_constraint_selector(name: str, options: SelectorOptions | None = None) -> ConstraintSelector:
-    if name not in CONSTRAINT_SELECTORS:
-        raise ValueError(f"unknown constraint selector {name!r}; choose one of {sorted(CONSTRAINT_SELECTORS)}")
-    return CONSTRAINT_SELECTORS[name](options or SelectorOptions())

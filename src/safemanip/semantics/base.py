@@ -10,6 +10,10 @@ import numpy as np
 from safemanip.selection.base import SceneView
 
 
+VLM_BACKENDS = ("semantic", "openai")
+"""The semantic backends by name (``--vlm-backend``): the offline classifier and any OpenAI-compatible server."""
+
+
 class BackendError(RuntimeError):
     """A backend could not produce a valid answer (network, server, cache miss, malformed answer).
 

@@ -65,8 +65,11 @@ class ResponseCache:
     def _path(self, key: str) -> Path:
         return self.root / key[:2] / f"{key}.json"
 
-    def get(self, key: str) -> dict | None:
-        """The stored answer for ``key``, or None. In cache_only mode a miss raises BackendError."""
+    def get(self, key: str, expect: dict | None = None) -> dict | None:
+        """The stored answer for ``key``, or None. In cache_only mode a miss raises BackendError.
+
+        ``expect``: meta values the entry must have been recorded with (model, prompt and schema versions);
+        an entry recorded under other versions is a miss."""
         path = self._path(key)
         entry: dict | None = None
         corrupt: str | None = None
@@ -82,6 +85,11 @@ class ResponseCache:
         if entry is not None and (entry.get("format") != CACHE_FORMAT or entry.get("key") != key
                                   or not isinstance(entry.get("answer"), dict)):
             corrupt, entry = f"{path}: not a {CACHE_FORMAT} entry for this key", None
+        if entry is not None and expect:
+            meta = entry.get("meta") if isinstance(entry.get("meta"), dict) else {}
+            stale = {k: meta.get(k) for k, v in expect.items() if meta.get(k) != v}
+            if stale:
+                corrupt, entry = f"{path}: recorded with {stale}, not the current {expect}", None
         if entry is None:
             self.misses += 1
             if self.cache_only:

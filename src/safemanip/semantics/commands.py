@@ -18,12 +18,10 @@ from PIL import Image
 
 from safemanip.scene.catalog import CONSTRAINT_OF_CLASS, CONSTRAINT_TYPES, SEMANTIC_CLASSES, load_catalog
 from safemanip.selection.base import SceneView, nearest_ids
-from safemanip.semantics.base import Backend, BackendError, ConstraintQuery, ObjectQuery, object_label
+from safemanip.semantics.base import VLM_BACKENDS, Backend, BackendError, ConstraintQuery, ObjectQuery, object_label
 from safemanip.semantics.cache import ResponseCache
 
 log = logging.getLogger(__name__)
-
-BACKEND_NAMES = ("semantic", "openai")
 
 # Mild rewordings a person or a detector might produce for the same object; used to give a
 # deterministic backend something to disagree with itself about across trials.
@@ -46,7 +44,7 @@ def make_backend(backend_name: str, *, model: str | None = None, base_url: str |
         cache = ResponseCache(cache_dir, mode=cache_mode) if cache_dir else None
         return OpenAIBackend(model=model or "gpt-4o", base_url=base_url, cache=cache, timeout_s=timeout_s,
                              attempts=attempts)
-    raise ValueError(f"unknown backend {backend_name!r}; choose one of {BACKEND_NAMES}")
+    raise ValueError(f"unknown backend {backend_name!r}; choose one of {VLM_BACKENDS}")
 
 
 def _backend(backend: str | Backend, **kwargs) -> Backend:
@@ -67,7 +65,7 @@ def classify_constraints(backend_name: str | Backend, names: Sequence[str], *, t
 PAPER_OBJECTS = ("toy squirrel", "toy sheep", "toy android", "red mug", "blue mug", "porcelain mug", "supplement bottle",
                  "plant pot")
 """The eight objects of the paper's experiments (its Tables III and IV are over these)."""
-OBJECT_SETS = ("catalog", "paper", "heldout")
+OBJECT_SETS = ("catalog", "paper", "heldout", "heldout-v2")
 
 
 def object_set(which: str) -> dict[str, str]:
@@ -81,11 +79,29 @@ def object_set(which: str) -> dict[str, str]:
     if which == "paper":
         catalog = load_catalog()
         return {n: catalog[n].constraint for n in PAPER_OBJECTS}
-    if which == "heldout":
-        raw = json.loads(resources.files("safemanip.semantics").joinpath("data", "heldout_names_v1.json")
-                         .read_text(encoding="utf-8"))
+    if which in ("heldout", "heldout-v2"):
+        filename = "heldout_names_v1.json" if which == "heldout" else "heldout_names_v2.json"
+        raw = json.loads(resources.files("safemanip.semantics").joinpath("data", filename).read_text(encoding="utf-8"))
         return {n: CONSTRAINT_OF_CLASS[c] for c in SEMANTIC_CLASSES for n in sorted(raw["classes"][c])}
     raise ValueError(f"unknown object set {which!r}; choose one of {OBJECT_SETS}")
+
+
+def name_confusion(backend: Backend, objects: str) -> dict:
+    """Each name of an object set classified once, alone: counts[truth][predicted] over the constraint types,
+    the unsafe-error rate (a no_contact object given any other type), per-class recall, balanced accuracy
+    and the names that were wrong."""
+    truth = object_set(objects)
+    names = list(truth)
+    predicted = [backend.assign_constraints(ConstraintQuery(names=(n,))).constraints[0] for n in names]
+    counts = {t: {p: 0 for p in CONSTRAINT_TYPES} for t in CONSTRAINT_TYPES}
+    for n, p in zip(names, predicted):
+        counts[truth[n]][p] += 1
+    recall = {t: counts[t][t] / max(1, sum(counts[t].values())) for t in CONSTRAINT_TYPES}
+    fragile = sum(counts["no_contact"].values())
+    return {"objects": objects, "names": len(names), "counts": counts, "recall": recall,
+            "balanced_accuracy": sum(recall.values()) / len(recall),
+            "unsafe_rate": (fragile - counts["no_contact"]["no_contact"]) / max(1, fragile),
+            "wrong": {n: [truth[n], p] for n, p in zip(names, predicted) if p != truth[n]}}
 
 
 def constraint_matrix(backend_name: str | Backend, trials: int = 200, seed: int = 0, *, objects_per_scene: int = 6,

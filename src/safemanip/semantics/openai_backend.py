@@ -10,10 +10,12 @@ so that back-off, the number of attempts and which errors are retried are explic
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
 import logging
 import os
 import random
+import re
 import time
 from typing import Any, Callable, Sequence
 
@@ -23,7 +25,7 @@ from safemanip.semantics.base import (BackendError, ConstraintAnswer, Constraint
                                       SchemaError)
 from safemanip.semantics.cache import ResponseCache, cache_key
 from safemanip.semantics.prompts import load_prompt
-from safemanip.semantics.schemas import (CONSTRAINT_SCHEMA_NAME, OBJECT_SCHEMA_NAME, constraint_schema,
+from safemanip.semantics.schemas import (CONSTRAINT_SCHEMA_NAME, OBJECT_SCHEMA_NAME, SCHEMA_VERSION, constraint_schema,
                                          object_selection_schema, parse_constraint_answer, parse_object_answer)
 
 log = logging.getLogger(__name__)
@@ -93,8 +95,9 @@ class OpenAIBackend:
                 f"{listing}\n\nChoose exactly k = {k} objects.")
         if not query.images:
             user += " No camera frame is available for this query; rely on the sorted list."
-        answer, cached = self._structured(system, user, query.images or [], OBJECT_SCHEMA_NAME, schema,
-                                          lambda a: parse_object_answer(a, labels, k))
+        with _redacted_errors():
+            answer, cached = self._structured(system, user, query.images or [], OBJECT_SCHEMA_NAME, schema,
+                                              lambda a: parse_object_answer(a, labels, k))
         ids, explanation, description = parse_object_answer(answer, labels, k)
         return ObjectAnswer(ids=ids, explanation=explanation, image_description=description, raw=answer,
                             cached=cached)
@@ -105,8 +108,9 @@ class OpenAIBackend:
         system = load_prompt("constraint_selection", self.prompt_version, task=query.task)
         listing = "\n".join(f"- {label}" for label in labels)
         user = f"Objects on the table:\n{listing}\n\nGive one constraint type for every object."
-        answer, cached = self._structured(system, user, query.images or [], CONSTRAINT_SCHEMA_NAME, schema,
-                                          lambda a: parse_constraint_answer(a, labels))
+        with _redacted_errors():
+            answer, cached = self._structured(system, user, query.images or [], CONSTRAINT_SCHEMA_NAME, schema,
+                                              lambda a: parse_constraint_answer(a, labels))
         constraints, explanations = parse_constraint_answer(answer, labels)
         return ConstraintAnswer(constraints=constraints, explanations=explanations, raw=answer, cached=cached)
 
@@ -117,7 +121,7 @@ class OpenAIBackend:
         """A validated structured answer (from the cache when possible) and whether it was cached."""
         key = cache_key(self.model, json.dumps([system, user]), images, schema) if self.cache is not None else ""
         if self.cache is not None:
-            hit = self.cache.get(key)  # raises BackendError on a miss in cache_only mode
+            hit = self.cache.get(key, expect=self._cache_meta(schema_name))  # BackendError on a miss if cache_only
             if hit is not None:
                 try:
                     check(hit)
@@ -154,9 +158,14 @@ class OpenAIBackend:
                 last = exc
                 continue
             if self.cache is not None:
-                self.cache.put(key, answer, meta={"model": self.model, "schema": schema_name})
+                self.cache.put(key, answer, meta=self._cache_meta(schema_name))
             return answer, False
         raise BackendError(f"{self.name}: no valid answer after {self.attempts} attempt(s); last error: {last}")
+
+    def _cache_meta(self, schema_name: str) -> dict:
+        """What a cache entry must have been recorded with to be used: model, prompt version, schema."""
+        return {"model": self.model, "schema": schema_name, "prompt_version": self.prompt_version,
+                "schema_version": SCHEMA_VERSION}
 
     def _request(self, messages: list[dict], response_format: dict) -> dict:
         kwargs: dict[str, Any] = {"model": self.model, "messages": messages, "response_format": response_format,
@@ -171,7 +180,7 @@ class OpenAIBackend:
         except openai.APITimeoutError as exc:
             raise _Retryable(f"request timed out after {self.timeout_s:g}s ({exc.__class__.__name__})") from exc
         except openai.APIConnectionError as exc:
-            raise _Retryable(f"cannot reach {self.base_url or 'the OpenAI API'}: {exc}") from exc
+            raise _Retryable(f"cannot reach {self.base_url or 'the OpenAI API'}: {_brief(exc)}") from exc
         except openai.AuthenticationError as exc:
             raise BackendError(f"{self.name}: authentication failed (HTTP 401); set OPENAI_API_KEY to a valid key "
                                "for this server") from exc
@@ -189,6 +198,15 @@ class OpenAIBackend:
             # the client could not make sense of the reply (e.g. a non-JSON body)
             raise _Retryable(f"unreadable response: {exc.__class__.__name__}: {_brief(exc)}") from exc
         return _content_json(completion)
+
+
+@contextlib.contextmanager
+def _redacted_errors():
+    """Re-raise a BackendError with credentials removed from its message (and no chained server error)."""
+    try:
+        yield
+    except BackendError as exc:
+        raise type(exc)(redact(str(exc))) from None
 
 
 class _Retryable(Exception):
@@ -219,6 +237,21 @@ def _content_json(completion: Any) -> dict:
     return answer
 
 
+_SECRET_PATTERNS = (re.compile(r"(?i)(bearer\s+)[^\s'\",}]+"), re.compile(r"sk-[A-Za-z0-9_\-]{8,}"),
+                    re.compile(r"(?i)((?:api[_-]?key|authorization)[\"']?\s*[:=]\s*[\"']?)[^\s'\",}]+"))
+
+
+def redact(text: str) -> str:
+    """``text`` with the API key and anything shaped like a credential (``Bearer ...``, ``sk-...``,
+    ``api_key=...``) replaced by ``[redacted]``: servers may echo request headers in error bodies."""
+    key = os.environ.get("OPENAI_API_KEY") or ""
+    if len(key) >= 4:
+        text = text.replace(key, "[redacted]")
+    for pattern in _SECRET_PATTERNS:
+        text = pattern.sub(lambda m: (m.group(1) if m.groups() else "") + "[redacted]", text)
+    return text
+
+
 def _brief(value: Any, limit: int = 200) -> str:
-    text = str(value)
+    text = redact(str(value))
     return text if len(text) <= limit else text[: limit - 3] + "..."

@@ -15,6 +15,8 @@ from typing import Any, Sequence
 from safemanip.scene.catalog import CONSTRAINT_TYPES
 from safemanip.semantics.base import SchemaError
 
+SCHEMA_VERSION = "1"
+"""Bumped whenever a schema below changes shape; cached answers recorded under another version are not used."""
 OBJECT_SCHEMA_NAME = "relevant_objects"
 CONSTRAINT_SCHEMA_NAME = "object_constraints"
 

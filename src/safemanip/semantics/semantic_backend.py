@@ -37,9 +37,12 @@ Embedder = Callable[[list[str]], np.ndarray]
 """Maps names to an (n, d) array of embeddings (any scale; rows are L2-normalised by the caller)."""
 
 DEFAULT_EXAMPLES = "class_examples_v3.json"
-EXAMPLE_FILES = {"v1": "class_examples_v1.json", "v2": "class_examples_v2.json", "v3": "class_examples_v3.json"}
+"""v3 stays the default: v4 (issue 11) was measured once on heldout_names_v2.json and the catalog and did not
+meet the unsafe-error target there (README, semantic section); ``--semantic-examples v4`` selects it."""
+EXAMPLE_FILES = {"v1": "class_examples_v1.json", "v2": "class_examples_v2.json", "v3": "class_examples_v3.json",
+                 "v4": "class_examples_v4.json"}
 """Shipped example-set versions (``--semantic-examples v1`` / ``v2`` reproduce the earlier classifiers)."""
-DECISION_RULES = ("argmax", "strictest_within_margin", "logistic_strictest_within_margin")
+DECISION_RULES = ("argmax", "strictest_within_margin", "logistic_strictest_within_margin", "logistic_fragile_threshold")
 LOGISTIC_DEFAULTS = {"l2": 0.1, "scale": 10.0, "iterations": 300, "learning_rate": 0.5}
 """Fit settings of the ``logistic_*`` rule (a file's decision block may override them)."""
 # How bad a contact is, per class: fragile objects break, soft ones tolerate a nudge, durable ones
@@ -108,6 +111,11 @@ def load_decision_rule(filename: str = DEFAULT_EXAMPLES) -> dict:
     if not 0.0 <= margin < 1.0:
         raise ValueError(f"{filename}: decision margin must be in [0, 1), got {margin}")
     decision["margin"] = margin if decision["rule"] != "argmax" else 0.0
+    if decision["rule"] == "logistic_fragile_threshold":
+        threshold = float(decision.get("fragile_threshold", -1))
+        if not 0.0 < threshold < 1.0:
+            raise ValueError(f"{filename}: fragile_threshold must be in (0, 1), got {threshold}")
+        decision["fragile_threshold"] = threshold
     if decision["rule"].startswith("logistic"):
         for key, default in LOGISTIC_DEFAULTS.items():
             decision[key] = float(decision.get(key, default))
@@ -122,6 +130,63 @@ def decide_classes(similarities: np.ndarray, margin: float) -> np.ndarray:
     sims = np.atleast_2d(np.asarray(similarities, dtype=np.float64))
     close = sims >= sims.max(axis=1, keepdims=True) - margin
     return np.argmax(close, axis=1)
+
+
+def decide_fragile_threshold(probabilities: np.ndarray, fragile_threshold: float, soft_margin: float) -> np.ndarray:
+    """fragile when P(fragile) >= ``fragile_threshold`` (well below 1/2: calling a fragile object anything else
+    is the unsafe error); otherwise soft when P(soft) >= P(durable) - ``soft_margin``; otherwise durable."""
+    p = np.atleast_2d(np.asarray(probabilities, dtype=np.float64))
+    return np.where(p[:, 0] >= fragile_threshold, 0, np.where(p[:, 1] >= p[:, 2] - soft_margin, 1, 2))
+
+
+def head_noun_folds(names: Sequence[str], folds: int, seed: int) -> np.ndarray:
+    """Fold index per name such that names with the same head noun (last word, naive singular) share a fold:
+    each held-out fold then holds only head nouns the model was not fitted on, as a new name list would."""
+    heads = [n.lower().split()[-1] for n in names]
+    heads = [h[:-1] if h.endswith("s") and not h.endswith("ss") else h for h in heads]
+    unique = sorted(set(heads))
+    order = np.random.default_rng(seed).permutation(len(unique))
+    fold_of = {unique[j]: i % folds for i, j in enumerate(order)}
+    return np.array([fold_of[h] for h in heads])
+
+
+def select_fragile_threshold(examples: dict[str, list[str]] | None = None, embedder: "Embedder | None" = None, *,
+                             unsafe_cost: float = 10.0, folds: int = 5, repeats: int = 4,
+                             thresholds: Sequence[float] | None = None, soft_margins: Sequence[float] | None = None,
+                             **fit) -> dict:
+    """Choose (fragile_threshold, soft_margin) of ``logistic_fragile_threshold`` on the example names only.
+
+    Scored by cross-validation with folds grouped by head noun (``head_noun_folds``), repeated with seeds
+    0..repeats-1. Cost per example: ``unsafe_cost`` when a fragile name is called soft or durable, 1 for any
+    other error; the pair of least mean cost wins (ties: the higher threshold, then the smaller margin)."""
+    examples = examples if examples is not None else load_class_examples()
+    settings = {**LOGISTIC_DEFAULTS, **fit}
+    emb, labels = _embed_examples(examples, embedder)
+    names, _ = _flat_examples(examples)
+    scores = np.zeros((repeats, len(labels), len(SEMANTIC_CLASSES)))
+    for r in range(repeats):
+        fold = head_noun_folds(names, folds, r)
+        for k in range(folds):
+            test = fold == k
+            w, b = fit_logistic(emb[~test], labels[~test], **settings)
+            scores[r, test] = logistic_probabilities(emb[test], w, b, settings["scale"])
+    thresholds = np.round(np.arange(0.05, 0.5001, 0.01), 4) if thresholds is None else thresholds
+    soft_margins = np.round(np.arange(0.0, 0.5001, 0.05), 4) if soft_margins is None else soft_margins
+    rows = []
+    for tf in thresholds:
+        for m in soft_margins:
+            preds = [decide_fragile_threshold(run, float(tf), float(m)) for run in scores]
+            unsafe = [np.sum((labels == 0) & (p != 0)) for p in preds]
+            other = [np.sum((p != labels) & (labels != 0)) for p in preds]
+            recall = [float(np.mean([np.mean(p[labels == i] == i) for p in preds])) for i in range(3)]
+            rows.append({"fragile_threshold": float(tf), "soft_margin": float(m),
+                         "cost": round(float(np.mean([unsafe_cost * u + o for u, o in zip(unsafe, other)])) / len(labels), 4),
+                         "unsafe_rate": round(float(np.mean(unsafe)) / int(np.sum(labels == 0)), 4),
+                         "recall": dict(zip(SEMANTIC_CLASSES, (round(x, 3) for x in recall))),
+                         "balanced_accuracy": round(float(np.mean(recall)), 4)})
+    best = min(rows, key=lambda r: (r["cost"], -r["fragile_threshold"], r["soft_margin"]))
+    return {"best": best, "table": rows, "unsafe_cost": unsafe_cost, "n_examples": int(len(labels)),
+            "cv": f"{folds}-fold grouped by head noun, {repeats} repeats"}
 
 
 def fit_logistic(embeddings: np.ndarray, labels: np.ndarray, *, l2: float, scale: float, iterations: int,
@@ -354,7 +419,12 @@ class SemanticBackend:
         """Semantic class per name under the decision rule (argmax, or the strictest class within the margin)."""
         if not len(names):
             return []
-        return [SEMANTIC_CLASSES[i] for i in decide_classes(self.class_similarities(names), self.margin)]
+        if self.decision["rule"] == "logistic_fragile_threshold":
+            chosen = decide_fragile_threshold(self.class_similarities(names), self.decision["fragile_threshold"],
+                                              self.margin)
+        else:
+            chosen = decide_classes(self.class_similarities(names), self.margin)
+        return [SEMANTIC_CLASSES[i] for i in chosen]
 
     def assign_constraints(self, query: ConstraintQuery) -> ConstraintAnswer:
         probs = self.class_probabilities(query.names)

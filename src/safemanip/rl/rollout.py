@@ -1,8 +1,10 @@
-"""Roll a policy out for many independent episodes, in parallel on local cores."""
+"""Roll an actor out for independent episodes of a registered env (the training loop's periodic
+evaluation; the selector-aware evaluation of ``safemanip eval`` is ``evaluation/episode.py``)."""
 
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -29,11 +31,11 @@ def run_episode(env, act, seed: int) -> EpisodeRecord:
 
 def _worker(args) -> list[dict]:
     policy_arrays, env_kwargs, seeds = args
-    from safemanip.rl.collector import env_factory
+    from safemanip.rl.envs import make_env
     from safemanip.rl.numpy_actor import NumpyActor
 
     actor = NumpyActor(policy_arrays)
-    env = env_factory(env_kwargs)
+    env = make_env(env_kwargs)
     return [asdict(run_episode(env, actor, s)) for s in seeds]
 
 
@@ -42,7 +44,9 @@ def evaluate_actor(actor_arrays: list[np.ndarray], env_kwargs: dict, seeds: list
     if workers <= 1:
         return _worker((actor_arrays, env_kwargs, seeds))
     chunks = [seeds[i::workers] for i in range(workers)]
-    with mp.get_context("spawn").Pool(workers) as pool:
+    from safemanip.util.procs import die_with_parent
+
+    with mp.get_context("spawn").Pool(workers, initializer=die_with_parent, initargs=(os.getpid(),)) as pool:
         parts = pool.map(_worker, [(actor_arrays, env_kwargs, c) for c in chunks if c])
     by_seed = {r["seed"]: r for part in parts for r in part}
     return [by_seed[s] for s in seeds]

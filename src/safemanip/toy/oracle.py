@@ -22,7 +22,7 @@ The ground truth is the undiscounted reach-avoid Bellman equation (paper eq. 1)
     V(s) = min(g(s), max(l(s), max_a V(f(s, a))))          V(s) > 0  <=>  s can reach the target safely
 
 with the action set {-1, -1 + 1/n, ..., 1}^2 (bang-bang and in between). Run as a module to retrain
-from scratch and print the metrics table: ``python -m safemanip.rl.toy --help``. The shipped test
+from scratch and print the metrics table: ``python -m safemanip.toy --help``. The shipped test
 model, its command, its numbers and the gamma sweep behind the defaults: tests/data/toy_reach_avoid/README.md.
 """
 
@@ -30,100 +30,12 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
-import gymnasium as gym
 import numpy as np
 
-
-@dataclass(frozen=True)
-class ToySpec:
-    dt: float = 0.1
-    a_max: float = 2.0
-    v_max: float = 2.0
-    obstacle: tuple[float, float] = (0.0, 0.0)
-    obstacle_radius: float = 0.3
-    target: tuple[float, float] = (0.6, 0.0)
-    target_radius: float = 0.2
-
-
-SPEC = ToySpec()
-
-
-# ------------------------------------------------------------------ dynamics and margins (batched, pure)
-def step_states(states: np.ndarray, actions: np.ndarray, spec: ToySpec = SPEC) -> np.ndarray:
-    """Next states for a batch (..., 4) of states and (..., 2) of actions (clipped to [-1, 1])."""
-    s = np.asarray(states, dtype=np.float64)
-    a = np.clip(np.asarray(actions, dtype=np.float64), -1.0, 1.0)
-    v = np.clip(s[..., 2:] + spec.a_max * spec.dt * a, -spec.v_max, spec.v_max)
-    return np.concatenate([s[..., :2] + spec.dt * v, v], axis=-1)
-
-
-def margins(states: np.ndarray, spec: ToySpec = SPEC) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(l, g, g_obstacle, g_box) of a batch (..., 4) (or (..., 2) positions)."""
-    p = np.asarray(states, dtype=np.float64)[..., :2]
-    l = spec.target_radius - np.linalg.norm(p - np.asarray(spec.target), axis=-1)
-    g_obs = np.linalg.norm(p - np.asarray(spec.obstacle), axis=-1) - spec.obstacle_radius
-    g_box = 1.0 - np.abs(p).max(axis=-1)
-    return l, np.minimum(g_obs, g_box), g_obs, g_box
-
-
-def sample_states(rng: np.random.Generator, n: int, spec: ToySpec = SPEC) -> np.ndarray:
-    """n states uniform over the box x velocity box, restricted to running states (g >= 0, l <= 0)."""
-    out = np.empty((0, 4))
-    while len(out) < n:
-        cand = np.concatenate([rng.uniform(-1, 1, size=(2 * n, 2)),
-                               rng.uniform(-spec.v_max, spec.v_max, size=(2 * n, 2))], axis=1)
-        l, g, _, _ = margins(cand, spec)
-        out = np.concatenate([out, cand[(g >= 0) & (l <= 0)]])
-    return out[:n]
-
-
-# ------------------------------------------------------------------ the env
-class ToyReachAvoidEnv(gym.Env):
-    """Gymnasium env with the slide-out env's info contract (l, g, event, t; object/names/constraints
-    are empty so the shared evaluation code runs unchanged). ``reset(options={"state": s})`` starts at s."""
-
-    metadata = {"render_modes": []}
-
-    def __init__(self, max_episode_steps: int = 100, spec: dict | None = None):
-        self.toy = ToySpec(**{k: tuple(v) if isinstance(v, list) else v for k, v in (spec or {}).items()})
-        self.max_episode_steps = int(max_episode_steps)
-        hi = np.array([1.5, 1.5, self.toy.v_max, self.toy.v_max], dtype=np.float32)
-        self.observation_space = gym.spaces.Box(-hi, hi, dtype=np.float32)
-        self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
-        self._state = np.zeros(4)
-        self._t = 0
-
-    def _info(self, event: str) -> dict:
-        l, g, _, _ = margins(self._state, self.toy)
-        return {"l": float(l), "g": float(g), "event": event, "t": self._t, "object": None, "object_id": None,
-                "names": [], "constraints": [], "is_success": event == "success"}
-
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
-        if options and options.get("state") is not None:
-            self._state = np.asarray(options["state"], dtype=np.float64).reshape(4).copy()
-        else:
-            self._state = sample_states(self.np_random, 1, self.toy)[0]
-        self._t = 0
-        return self._state.astype(np.float32), self._info("running")
-
-    def step(self, action):
-        self._state = step_states(self._state, np.asarray(action).reshape(2), self.toy)
-        self._t += 1
-        l, g, g_obs, g_box = margins(self._state, self.toy)
-        terminated = truncated = False
-        if g < 0:
-            event, terminated = ("failure:hard" if g_obs <= g_box else "failure:oob"), True
-        elif l > 0:
-            event, terminated = "success", True
-        elif self._t >= self.max_episode_steps:
-            event, truncated = "timeout", True
-        else:
-            event = "running"
-        return self._state.astype(np.float32), float(min(l, g)), terminated, truncated, self._info(event)
+from safemanip.toy.system import SPEC, ToyReachAvoidEnv, ToySpec, margins, sample_states, step_states  # noqa: F401
 
 
 # ------------------------------------------------------------------ the exact grid solution
@@ -442,7 +354,8 @@ def grid_self_check(grid: GridSolution, states: np.ndarray, max_steps: int = 100
 
 
 # ------------------------------------------------------------------ retrain from scratch
-TOY_FACTORY = "safemanip.rl.toy:ToyReachAvoidEnv"
+TOY_ENV = "toy-double-integrator"
+"""The toy system's name in the env registry (``safemanip.rl.envs.ENVS``)."""
 DEFAULT_TRAIN = {
     # gamma: the sign of the discounted value matches the reach-avoid set only as gamma -> 1 (the discount
     # ceiling: 0.46 at 0.99, 0.56 at 0.995, 0.73 at 0.998, 0.87 at 0.999), but at 0.999 the policy learns to
@@ -461,7 +374,7 @@ def toy_config(out_dir: str, minutes: float, total_env_steps: int = 10**8, seed:
     from safemanip.rl.config import TrainConfig
 
     kw = {"algorithm": "rarl", **DEFAULT_TRAIN, **overrides}
-    return TrainConfig(env_factory=TOY_FACTORY, extra_env_kwargs={"max_episode_steps": max_episode_steps},
+    return TrainConfig(env=TOY_ENV, extra_env_kwargs={"max_episode_steps": max_episode_steps},
                        max_episode_steps=max_episode_steps, out_dir=out_dir, minutes=minutes,
                        total_env_steps=total_env_steps, seed=seed, **kw)
 
@@ -469,7 +382,7 @@ def toy_config(out_dir: str, minutes: float, total_env_steps: int = 10**8, seed:
 def main(argv: list[str] | None = None) -> int:
     import argparse
 
-    ap = argparse.ArgumentParser(prog="python -m safemanip.rl.toy",
+    ap = argparse.ArgumentParser(prog="python -m safemanip.toy",
                                  description="train the reach-avoid learner on the toy double integrator and "
                                              "score it against the exact grid solution")
     ap.add_argument("--out", default="runs/toy", help="run folder (must not hold a run)")
@@ -500,7 +413,7 @@ def main(argv: list[str] | None = None) -> int:
             key, _, value = item.partition("=")
             overrides[key] = json.loads(value)
         cfg = toy_config(args.out, args.minutes, seed=args.seed, **overrides)
-        command = "python -m safemanip.rl.toy " + " ".join(argv if argv is not None else __import__("sys").argv[1:])
+        command = "python -m safemanip.toy " + " ".join(argv if argv is not None else __import__("sys").argv[1:])
         t0 = time.perf_counter()
         run_dir = train(cfg, progress=False, command=command)
         wall = time.perf_counter() - t0

@@ -1,9 +1,11 @@
-"""CLI wiring of ``safemanip eval`` and ``safemanip sweep``; ``cli.build_parser`` calls ``register``."""
+"""``safemanip eval`` and ``safemanip sweep``."""
 
 from __future__ import annotations
 
 import argparse
 import json
+
+from safemanip.cli.common import CliError, add_compute_backend, add_vlm_budget, int_in
 
 EVAL_EXAMPLES = """examples:
   safemanip eval --policy policies/rarl-k3-conservative.safetensors --episodes 500
@@ -35,6 +37,8 @@ def _cmd_eval(args) -> int:
                       workers=args.workers, backend=args.backend, address=args.address, out=args.out, pad=args.pad,
                       interval=args.interval, vlm_backend=args.vlm_backend, vlm_model=args.vlm_model,
                       vlm_base_url=args.vlm_base_url, vlm_cache=args.vlm_cache, vlm_cache_only=args.vlm_cache_only,
+                      vlm_timeout=args.vlm_timeout, vlm_episode_budget=args.vlm_episode_budget,
+                      vlm_run_budget=args.vlm_run_budget, vlm_max_failures=args.vlm_max_failures,
                       max_episode_steps=args.max_episode_steps, chunk_size=args.chunk_size,
                       progress=not args.no_progress)
     report = evaluate(req)
@@ -43,7 +47,8 @@ def _cmd_eval(args) -> int:
         print(f"records: {args.out}/episodes.csv, summary: {args.out}/summary.json")
     if args.json:
         print(json.dumps({k: v for k, v in report["summary"].items() if k != "policy_meta"}, indent=1))
-    return 0
+    stop = report["summary"].get("interrupted")
+    return 128 + stop["signum"] if stop else 0
 
 
 def _cmd_sweep(args) -> int:
@@ -51,33 +56,36 @@ def _cmd_sweep(args) -> int:
 
     if args.list or not args.name:
         if not args.list:
-            raise ValueError("name a sweep, e.g. `safemanip sweep fig5`; shipped: " + ", ".join(available()))
+            raise CliError("name a sweep, e.g. `safemanip sweep fig5`; shipped: " + ", ".join(available()))
         for name in available():
             print(name)
         return 0
-    if args.episodes is not None and args.episodes < 1:
-        raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
     status = run_sweep(args.name, episodes=args.episodes, out=args.out, workers=args.workers, backend=args.backend,
                        address=args.address, render_only=args.render_only, progress=not args.no_progress)
+    if status.get("interrupted"):
+        return 128 + status["interrupted"]
+    if not args.render_only and status["skipped"] and not (status["ran"] or status["done"]):
+        raise CliError(f"every cell of sweep {args.name} was skipped: none of its policy files exists (the train "
+                       "commands are above)")
     return 1 if status["failed"] else 0
 
 
 def _add_run_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--workers", type=int, default=2, help="parallel workers (local processes or Ray CPUs; default 2)")
-    p.add_argument("--backend", default="local", choices=["local", "ray"],
-                   help="local: spawn processes on this machine; ray: Ray tasks (default: local)")
-    p.add_argument("--address", help="Ray cluster address for --backend ray (default: start a local Ray instance)")
+    add_compute_backend(p)
     p.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
 
 
 def register(subparsers) -> None:
-    from safemanip.selection.selectors import CONSTRAINT_SELECTORS, OBJECT_SELECTORS
+    from safemanip.evaluation.harness import SEED_STRIDE
+    from safemanip.evaluation.registry import CONSTRAINT_SELECTORS, OBJECT_SELECTORS
+    from safemanip.scene.config import MAX_OBJECTS
+    from safemanip.semantics.base import VLM_BACKENDS
 
     ev = subparsers.add_parser(
         "eval", help="roll a policy out with object/constraint selection; success and failures with 95%% intervals",
         epilog=EVAL_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     ev.add_argument("--policy", required=True, help="policy file (.safetensors) or training run folder")
-    ev.add_argument("--n-objects", type=int,
+    ev.add_argument("--n-objects", type=int_in(0, MAX_OBJECTS),
                     help="clutter objects N (default: the number of --semantics classes, else the policy's k)")
     ev.add_argument("--semantics", help="classes of the clutter, e.g. '2 fragile, 3 durable' (default: any objects)")
     ev.add_argument("--selector", help=f"object selector: {', '.join(OBJECT_SELECTORS)} "
@@ -87,20 +95,23 @@ def register(subparsers) -> None:
                          "conservative policy, which always gets no_contact anyway; ground-truth for an 'all' one)")
     ev.add_argument("--judge", default="ground-truth", choices=["ground-truth", "conservative"],
                     help="failure set over all N objects: catalog ground truth, or every object no_contact (F^conser)")
-    ev.add_argument("--episodes", type=int, default=500)
-    ev.add_argument("--seed", type=int, default=0, help="episode seeds are seed*100000 + i")
-    ev.add_argument("--interval", type=int, default=4, help="re-selection interval of dynamic selectors (steps)")
+    ev.add_argument("--episodes", type=int_in(1, SEED_STRIDE), default=500)
+    ev.add_argument("--seed", type=int_in(0, 2**31 // SEED_STRIDE - 1), default=0,
+                    help="episode seeds are seed*100000 + i")
+    ev.add_argument("--interval", type=int_in(1, 100_000), default=4,
+                    help="re-selection interval of dynamic selectors (steps)")
     ev.add_argument("--pad", action="store_true",
                     help="allow N < k: fill empty policy slots with far-away dummy objects")
-    ev.add_argument("--max-episode-steps", type=int, help="override the policy's episode length")
-    ev.add_argument("--chunk-size", type=int, help="episodes per worker task (default: about 8 tasks per worker)")
+    ev.add_argument("--max-episode-steps", type=int_in(1, 100_000), help="override the policy's episode length")
+    ev.add_argument("--chunk-size", type=int_in(1, 100_000), help="episodes per worker task (default: about 8 tasks per worker)")
     vlm = ev.add_argument_group("semantic backend (for --selector dynamic-vlm / --constraints vlm)")
-    vlm.add_argument("--vlm-backend", choices=["semantic", "openai"],
+    vlm.add_argument("--vlm-backend", choices=VLM_BACKENDS,
                      help="semantic: offline embedding model (default); openai: any OpenAI-compatible server")
     vlm.add_argument("--vlm-model", help="model name for --vlm-backend openai (default gpt-4o)")
     vlm.add_argument("--vlm-base-url", help="server URL for --vlm-backend openai (default: OpenAI)")
     vlm.add_argument("--vlm-cache", metavar="DIR", help="answer cache folder for --vlm-backend openai")
     vlm.add_argument("--vlm-cache-only", action="store_true", help="never call the server; a cache miss falls back")
+    add_vlm_budget(vlm)
     _add_run_options(ev)
     ev.add_argument("--out", help="folder for episodes.csv and summary.json")
     ev.add_argument("--json", action="store_true", help="also print the JSON summary")
@@ -109,7 +120,7 @@ def register(subparsers) -> None:
     sw = subparsers.add_parser("sweep", help="run a named experiment grid (resumable) and draw its figure/table",
                                epilog=SWEEP_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     sw.add_argument("name", nargs="?", help="a shipped sweep (fig5, fig6, table1, ...) or a sweep .json file")
-    sw.add_argument("--episodes", type=int, help="episodes per cell (default: the sweep's, 2000 for the figures)")
+    sw.add_argument("--episodes", type=int_in(1, SEED_STRIDE), help="episodes per cell (default: the sweep's, 2000 for the figures)")
     sw.add_argument("--out", help="results folder (default: results/sweeps/NAME)")
     sw.add_argument("--render-only", action="store_true", help="only redraw figure and table from stored results")
     sw.add_argument("--list", action="store_true", help="list the shipped sweeps")

@@ -1,0 +1,5 @@
+import sys
+
+from safemanip.cli import main
+
+sys.exit(main())

@@ -1,0 +1,91 @@
+"""``safemanip train``: flags override a ``TrainConfig`` (validated before any work); ``--resume`` continues
+the run in the folder given, with that run's own config."""
+
+from __future__ import annotations
+
+import json
+import shlex
+import signal
+import sys
+from dataclasses import fields
+from pathlib import Path
+
+from safemanip.cli.common import SEED, CliError, float_in, int_in
+
+# flag -> (TrainConfig field, argparse type, help); every one is checked for range here and again by TrainConfig
+FLAGS = {
+    "--algorithm": ("algorithm", None, "rarl (reach-avoid backup) or vanilla (DDPG on r = min(l, g))"),
+    "--k": ("k", int_in(0, 8), "clutter objects in every training scene: the policy's k slots"),
+    "--constraints": ("constraints", None, "conservative (all no_contact) or all (types drawn per episode)"),
+    "--embodiment": ("embodiment", None, "panda (the 7-DoF Franka Panda, default) or hand (the idealised ablation)"),
+    "--total-env-steps": ("total_env_steps", int_in(1, 10**12), "budget in environment steps"),
+    "--minutes": ("minutes", float_in(0, 525_600), "wall-clock budget in minutes (0: no time limit)"),
+    "--seed": ("seed", SEED, "seed of everything random in the run"),
+    "--out": ("out_dir", None, "run folder (checkpoints, logs, policies)"),
+    "--gamma": ("gamma", float_in(0, 1), "discount factor, in (0, 1)"),
+    "--gamma-start": ("gamma_start", float_in(0, 1), "anneal gamma from this value over the first half of the budget"),
+    "--env-steps-per-update": ("env_steps_per_update", float_in(0, 10_000, lo_open=True),
+                               "environment steps collected per learner update"),
+    "--eval-every-s": ("eval_every_s", float_in(0, 86_400, lo_open=True), "seconds between evaluations"),
+    "--eval-episodes": ("eval_episodes", int_in(1, 100_000), "episodes per evaluation"),
+    "--checkpoint-every-s": ("checkpoint_every_s", float_in(0, 86_400, lo_open=True), "seconds between checkpoints"),
+    "--max-episode-steps": ("max_episode_steps", int_in(1, 100_000), "episode length in control steps"),
+}
+CHOICES = {"--algorithm": ["rarl", "vanilla"], "--constraints": ["conservative", "all"], "--embodiment": ["panda", "hand"]}
+
+
+def _cmd_train(args) -> int:
+    from safemanip.rl.config import TrainConfig
+    from safemanip.rl.train import train
+    from safemanip.util.files import check_output_dir
+
+    given = {field: getattr(args, field) for field, _, _ in FLAGS.values() if getattr(args, field) is not None}
+    if given.get("minutes") == 0:
+        given["minutes"] = None  # documented: 0 means no time limit
+    if args.resume:
+        run_dir = Path(args.resume)
+        if not (run_dir / "config.json").is_file():
+            raise CliError(f"--resume {args.resume}: no config.json there; is it a run folder?")
+        if args.config:
+            raise CliError("--resume uses the run's own config.json; drop --config")
+        cfg = TrainConfig.from_file(run_dir / "config.json")
+        if "out_dir" in given and Path(given.pop("out_dir")).resolve() != run_dir.resolve():
+            raise CliError(f"--resume writes into {run_dir}; --out names another folder. Copy the run folder there "
+                           f"and resume the copy instead")
+        conflicts = [f"{flag} {getattr(args, field)} (the run has {getattr(cfg, field)!r})"
+                     for flag, (field, _, _) in FLAGS.items() if field in given and given[field] != getattr(cfg, field)]
+        if conflicts:
+            raise CliError(f"--resume continues {run_dir} with its own settings; these flags differ from them: "
+                           f"{'; '.join(conflicts)}. Drop them, or start a new run with --out")
+    else:
+        run_dir = None
+        base = TrainConfig.from_file(args.config).__dict__ if args.config else {}
+        cfg = TrainConfig.from_dict({**base, **given})  # validated here, before any work starts
+        problems = check_output_dir(cfg.out_dir)
+        if problems:
+            raise CliError(problems[0])
+    command = "safemanip " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    run_dir = train(cfg, resume=bool(args.resume), progress=not args.no_progress, command=command, run_dir=run_dir)
+    summary = (run_dir / "summary.json").read_text()
+    stopped_by = json.loads(summary).get("interrupted")
+    if stopped_by:
+        print(f"run stopped by {stopped_by}; checkpoint and policy saved in {run_dir}; continue with: "
+              f"safemanip train --resume {run_dir}\n{summary}")
+        return 128 + int(getattr(signal, stopped_by))
+    print(f"run finished: {run_dir}\n{summary}")
+    return 0
+
+
+def register(sub) -> None:
+    from safemanip.rl.config import TrainConfig
+
+    tr = sub.add_parser("train", help="train a reach-avoid (rarl) or vanilla DDPG policy")
+    tr.add_argument("--config", help="JSON file with TrainConfig fields (flags override it)")
+    tr.add_argument("--resume", metavar="RUN_DIR", help="continue an interrupted run from its newest checkpoint, "
+                                                        "writing into RUN_DIR")
+    known = {f.name for f in fields(TrainConfig)}
+    for flag, (field, typ, help_) in FLAGS.items():
+        assert field in known, field
+        tr.add_argument(flag, dest=field, type=typ, choices=CHOICES.get(flag), help=help_)
+    tr.add_argument("--no-progress", action="store_true")
+    tr.set_defaults(func=_cmd_train)

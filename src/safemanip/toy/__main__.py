@@ -1,0 +1,3 @@
+from safemanip.toy.oracle import main
+
+raise SystemExit(main())

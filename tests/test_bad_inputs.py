@@ -1,0 +1,342 @@
+"""Bad inputs, as a new user or an attacker would type them: every one is answered with exit code 2 and
+a one-line message that says what is wrong, before any work is done (no episode, no training step, no
+file written), and never with a traceback. In-process through ``safemanip.cli.main`` (fast); the
+code-execution cases also as real subprocesses."""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from safetensors.numpy import save_file
+
+from safemanip.cli import main
+from safemanip.rl.checkpoint import POLICY_FORMAT, SHIPPED_POLICIES
+
+POLICY = str(SHIPPED_POLICIES / "rarl-k2-conservative.safetensors")
+EVAL = ["eval", "--policy", POLICY, "--episodes", "1", "--workers", "1", "--no-progress"]
+
+
+def run(capsys, argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def assert_refused(capsys, argv, message):
+    code, out, err = run(capsys, argv)
+    assert code == 2, (code, out[-500:], err[-1000:])
+    assert message in err, err
+    assert "Traceback" not in err and "Traceback" not in out
+    assert "error:" in err
+    return err
+
+
+# ------------------------------------------------------------------------------------------ files to refuse
+def policy_file(path: Path, tensors=None, meta=None, fmt=POLICY_FORMAT, raw_meta=None) -> str:
+    rng = np.random.default_rng(0)
+    if tensors is None:
+        tensors = {"layer0.weight": rng.normal(size=(8, 26)).astype(np.float32),
+                   "layer0.bias": np.zeros(8, np.float32),
+                   "layer1.weight": rng.normal(size=(3, 8)).astype(np.float32),
+                   "layer1.bias": np.zeros(3, np.float32)}
+    if meta is None:
+        meta = {"algorithm": "rarl", "k": 1, "constraints": "conservative", "obs_dim": 26, "act_dim": 3,
+                "hidden": [8], "env_kwargs": {"n_objects": 1, "max_episode_steps": 300}}
+    save_file(tensors, str(path), metadata={"format": fmt, "meta": raw_meta if raw_meta is not None else json.dumps(meta)})
+    return str(path)
+
+
+def _bad_policies(tmp: Path) -> dict[str, tuple[str, str]]:
+    good = policy_file(tmp / "good.safetensors")
+    data = Path(good).read_bytes()
+    files = {}
+
+    def write(name, content):
+        (tmp / name).write_bytes(content)
+        return str(tmp / name)
+
+    files["truncated"] = (write("truncated.safetensors", data[: len(data) - 40]), "truncated or damaged")
+    files["empty"] = (write("empty.safetensors", b""), "too short for a header")
+    files["text"] = (write("text.safetensors", b"this is not a tensor file at all, just words\n"), "header length")
+    files["huge-header"] = (write("huge.safetensors", struct.pack("<Q", 2**62) + b"{}"), "header length")
+    files["header-not-json"] = (write("notjson.safetensors", struct.pack("<Q", 4) + b"{{{{"), "header is not JSON")
+    header = json.dumps({"a": {"dtype": "F32", "shape": [1000], "data_offsets": [0, 16]}}).encode()
+    files["bad-offsets"] = (write("offsets.safetensors", struct.pack("<Q", len(header)) + header + b"\0" * 16),
+                            "invalid entry")
+    rng = np.random.default_rng(1)
+    files["not-a-policy"] = (policy_file(tmp / "other.safetensors", fmt="something-else/1"), "not a safemanip policy")
+    files["missing-key"] = (policy_file(tmp / "missing.safetensors", tensors={
+        "layer0.weight": rng.normal(size=(8, 26)).astype(np.float32), "layer0.bias": np.zeros(8, np.float32),
+        "layer1.weight": rng.normal(size=(3, 8)).astype(np.float32)}), "expected tensors")
+    files["meta-not-json"] = (policy_file(tmp / "metajson.safetensors", raw_meta="{k: 1"), "metadata is not valid JSON")
+    files["meta-nan"] = (policy_file(tmp / "metanan.safetensors", raw_meta='{"k": NaN}'), "metadata is not valid JSON")
+    nan = {"layer0.weight": np.full((8, 26), np.nan, np.float32), "layer0.bias": np.zeros(8, np.float32),
+           "layer1.weight": rng.normal(size=(3, 8)).astype(np.float32), "layer1.bias": np.zeros(3, np.float32)}
+    files["nan-weights"] = (policy_file(tmp / "nan.safetensors", tensors=nan), "non-finite")
+    chain = {"layer0.weight": rng.normal(size=(8, 26)).astype(np.float32), "layer0.bias": np.zeros(8, np.float32),
+             "layer1.weight": rng.normal(size=(3, 9)).astype(np.float32), "layer1.bias": np.zeros(3, np.float32)}
+    files["shapes-do-not-chain"] = (policy_file(tmp / "chain.safetensors", tensors=chain), "do not chain")
+    files["meta-shape-mismatch"] = (policy_file(tmp / "dims.safetensors", meta={
+        "k": 1, "constraints": "conservative", "obs_dim": 40, "act_dim": 3, "env_kwargs": {}}),
+        "metadata does not match the weights")
+    files["meta-lacks-k"] = (policy_file(tmp / "nok.safetensors", meta={"constraints": "conservative", "env_kwargs": {}}),
+                             "metadata lacks")
+    files["meta-k-not-int"] = (policy_file(tmp / "kstr.safetensors", meta={
+        "k": "two", "constraints": "conservative", "env_kwargs": {}}), "not a slot count")
+    files["toy-policy"] = (policy_file(tmp / "toy.safetensors", meta={
+        "k": 0, "constraints": "conservative", "env_kwargs": {"env": "toy-double-integrator"}}), "not the slide-out task")
+    files["missing-file"] = (str(tmp / "nowhere.safetensors"), "no policy file")
+    files["folder-without-policy"] = (str(tmp), "holds no policy.safetensors")
+    return files
+
+
+BAD_POLICIES = ["truncated", "empty", "text", "huge-header", "header-not-json", "bad-offsets", "not-a-policy",
+                "missing-key", "meta-not-json", "meta-nan", "nan-weights", "shapes-do-not-chain",
+                "meta-shape-mismatch", "meta-lacks-k", "meta-k-not-int", "toy-policy", "missing-file",
+                "folder-without-policy"]
+
+
+@pytest.mark.parametrize("case", BAD_POLICIES)
+def test_eval_refuses_a_bad_policy_file(capsys, tmp_path, case):
+    path, message = _bad_policies(tmp_path)[case]
+    out = tmp_path / "out"
+    assert_refused(capsys, ["eval", "--policy", path, "--episodes", "1", "--workers", "1", "--out", out], message)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("case", ["truncated", "nan-weights", "missing-key"])
+def test_demo_refuses_a_bad_policy_file(capsys, tmp_path, case):
+    path, message = _bad_policies(tmp_path)[case]
+    assert_refused(capsys, ["demo", "--policy", path, "--no-video", "--out", tmp_path / "d"], message)
+
+
+# ------------------------------------------------------------------------------------------ eval flags
+@pytest.mark.parametrize("extra,message", [
+    (["--episodes", "0"], "argument --episodes"),
+    (["--episodes", "-5"], "argument --episodes"),
+    (["--episodes", "1e3"], "expected an integer"),
+    (["--seed", "-1"], "argument --seed"),
+    (["--semantics", "99999999999999999999 fragile"], "at most 8 objects"),
+    (["--semantics", "three fragile"], "cannot read"),
+    (["--max-episode-steps", "1e12"], "argument --max-episode-steps"),
+    (["--max-episode-steps", "1000000000000"], "argument --max-episode-steps"),
+    (["--n-objects", "99"], "argument --n-objects"),
+    (["--workers", "0"], "argument --workers"),
+    (["--interval", "0"], "argument --interval"),
+    (["--chunk-size", "-1"], "argument --chunk-size"),
+    (["--selector", "bogus"], "unknown --selector"),
+    (["--constraints", "bogus"], "unknown --constraints"),
+    (["--judge", "bogus"], "argument --judge"),
+    (["--backend", "semantic"], "argument --backend"),
+    (["--address", "127.0.0.1:1"], "--address only applies to --backend ray"),
+    (["--vlm-timeout", "nan"], "argument --vlm-timeout"),
+    (["--vlm-timeout", "5"], "only appl"),
+    (["--vlm-max-failures", "0"], "argument --vlm-max-failures"),
+    (["--selector", "dynamic-vlm", "--n-objects", "3", "--vlm-timeout", "5"], "apply to --vlm-backend openai"),
+    (["--vlm-cache-only"], "only appl"),
+])
+def test_eval_refuses_bad_flags(capsys, extra, message):
+    assert_refused(capsys, EVAL + extra, message)
+
+
+def test_eval_checks_out_before_running_episodes(capsys, tmp_path):
+    a_file = tmp_path / "file.txt"
+    a_file.write_text("x")
+    assert_refused(capsys, EVAL + ["--out", a_file], "is a file")
+    assert_refused(capsys, EVAL + ["--out", a_file / "sub"], "is a file")
+    if os.geteuid() != 0:  # root writes anywhere
+        ro = tmp_path / "ro"
+        ro.mkdir()
+        ro.chmod(0o500)
+        try:
+            assert_refused(capsys, EVAL + ["--out", ro / "x"], "not writable")
+        finally:
+            ro.chmod(0o700)
+
+
+def test_eval_refuses_an_out_held_by_a_live_process(capsys, tmp_path):
+    out = tmp_path / "busy"
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from safemanip.util.files import OutputLock; "
+                               f"OutputLock({str(out)!r}).acquire(); print('held', flush=True); time.sleep(60)"],
+                              stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        assert_refused(capsys, EVAL + ["--out", out], "in use by a running process")
+        assert not (out / "summary.json").exists()
+    finally:
+        holder.kill()
+        holder.wait()
+    code, _, err = run(capsys, EVAL + ["--out", out])  # a dead holder's lock is gone with it
+    assert code == 0, err
+    assert (out / "summary.json").exists()
+
+
+# ------------------------------------------------------------------------------------------ train
+TRAIN = ["train", "--no-progress"]
+
+
+@pytest.mark.parametrize("extra,message", [
+    (["--minutes", "nan"], "argument --minutes"),
+    (["--minutes", "-1"], "argument --minutes"),
+    (["--minutes", "inf"], "argument --minutes"),
+    (["--checkpoint-every-s", "nan"], "argument --checkpoint-every-s"),
+    (["--checkpoint-every-s", "0"], "argument --checkpoint-every-s"),
+    (["--env-steps-per-update", "nan"], "argument --env-steps-per-update"),
+    (["--env-steps-per-update", "0"], "argument --env-steps-per-update"),
+    (["--eval-episodes", "-5"], "argument --eval-episodes"),
+    (["--eval-episodes", "0"], "argument --eval-episodes"),
+    (["--eval-every-s", "-3"], "argument --eval-every-s"),
+    (["--seed", "-1"], "argument --seed"),
+    (["--max-episode-steps", "1e12"], "argument --max-episode-steps"),
+    (["--total-env-steps", "0"], "argument --total-env-steps"),
+    (["--k", "99"], "argument --k"),
+    (["--gamma", "1"], "gamma must be in (0, 1)"),
+    (["--gamma", "0.9", "--gamma-start", "0.95"], "gamma_start must be in (0, gamma]"),
+    (["--algorithm", "ppo"], "argument --algorithm"),
+])
+def test_train_refuses_bad_flags(capsys, tmp_path, extra, message):
+    assert_refused(capsys, TRAIN + ["--out", tmp_path / "run"] + extra, message)
+    assert not (tmp_path / "run").exists()
+
+
+EVIL = {"env_factory": "subprocess:getoutput", "extra_env_kwargs": {"cmd": "touch {marker}"}}
+
+
+@pytest.mark.parametrize("config,message", [
+    (EVIL, "env_factory 'subprocess:getoutput' is not accepted"),
+    ({"env": "subprocess:getoutput"}, "env must be one of the registered envs"),
+    ({"env": "toy-double-integrator", "extra_env_kwargs": {"cmd": "x"}}, "not accepted by env"),
+    ({"extra_env_kwargs": {"max_episode_steps": 5}}, "extra_env_kwargs apply to non-default envs only"),
+    ({"learning_rat": 1e-3}, "unknown config key"),
+    ({"hidden": [1e9]}, "hidden must be a list of integers"),
+    ({"hidden": [100000]}, "hidden must list"),
+    ({"buffer_size": 10**12}, "buffer_size must be at most"),
+    ({"minutes": "ten"}, "minutes must be a float"),
+    ({"seed": True}, "seed must be an int"),
+    ({"eval_episodes": 0}, "eval_episodes must be 1..100000"),
+    ({"n_collectors": 10**6}, "n_collectors must be at most"),
+])
+def test_train_refuses_bad_configs(capsys, tmp_path, config, message):
+    marker = tmp_path / "pwned"
+    cfg = tmp_path / "c.json"
+    cfg.write_text(json.dumps(config).replace("{marker}", str(marker)))
+    assert_refused(capsys, TRAIN + ["--config", cfg, "--out", tmp_path / "run"], message)
+    assert not marker.exists() and not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("text,message", [("{not json", "not valid JSON"), ('{"minutes": NaN}', "not valid JSON"),
+                                          ("[1, 2]", "must be a JSON object"), ("", "not valid JSON")])
+def test_train_refuses_unreadable_config_files(capsys, tmp_path, text, message):
+    cfg = tmp_path / "c.json"
+    cfg.write_text(text)
+    assert_refused(capsys, TRAIN + ["--config", cfg], message)
+    assert_refused(capsys, TRAIN + ["--config", tmp_path / "missing.json"], "cannot read the config")
+
+
+def test_train_checks_out_before_any_work(capsys, tmp_path):
+    a_file = tmp_path / "file"
+    a_file.write_text("x")
+    assert_refused(capsys, TRAIN + ["--out", a_file], "is a file")
+    assert_refused(capsys, TRAIN + ["--out", a_file / "run"], "is a file")
+
+
+def _run_folder(tmp_path: Path, **config) -> Path:
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text(json.dumps({"k": 1, "out_dir": str(run), **config}))
+    return run
+
+
+@pytest.mark.parametrize("extra,message", [
+    (["--k", "3"], "these flags differ"),
+    (["--minutes", "5"], "these flags differ"),
+    (["--config", "x.json"], "drop --config"),
+    (["--out", "elsewhere"], "names another folder"),
+])
+def test_resume_refuses_conflicting_flags(capsys, tmp_path, extra, message):
+    run = _run_folder(tmp_path)
+    assert_refused(capsys, TRAIN + ["--resume", run] + extra, message)
+
+
+def test_resume_refuses_a_folder_that_is_not_a_run(capsys, tmp_path):
+    assert_refused(capsys, TRAIN + ["--resume", tmp_path], "no config.json there")
+    run = _run_folder(tmp_path)
+    assert_refused(capsys, TRAIN + ["--resume", run], "no complete checkpoint")
+
+
+def _python(args, cwd):
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    return subprocess.run([sys.executable, "-m", "safemanip.cli", *map(str, args)], capture_output=True, text=True,
+                          timeout=120, cwd=cwd, env=env)
+
+
+def test_a_config_or_run_folder_naming_a_module_runs_nothing(tmp_path):
+    """The attack of issue 11: ``"env_factory": "subprocess:getoutput"`` with a shell command. Refused with
+    exit 2, for a config file and for a run folder on --resume, and the command never runs."""
+    marker = tmp_path / "pwned"
+    evil = {**EVIL, "extra_env_kwargs": {"cmd": f"touch {marker}"}}
+    cfg = tmp_path / "evil.json"
+    cfg.write_text(json.dumps(evil))
+    done = _python(["train", "--config", cfg, "--out", tmp_path / "r1", "--no-progress"], tmp_path)
+    assert done.returncode == 2 and "is not accepted" in done.stderr and "Traceback" not in done.stderr
+    run = _run_folder(tmp_path, **evil)
+    done = _python(["train", "--resume", run, "--no-progress"], tmp_path)
+    assert done.returncode == 2 and "is not accepted" in done.stderr and "Traceback" not in done.stderr
+    assert not marker.exists()
+
+
+# ------------------------------------------------------------------------------------------ sweep, demo, semantics
+def test_sweep_refuses_bad_input(capsys, tmp_path):
+    assert_refused(capsys, ["sweep", "nope"], "no sweep named 'nope'")
+    assert_refused(capsys, ["sweep"], "name a sweep")
+    assert_refused(capsys, ["sweep", "fig5", "--episodes", "0"], "argument --episodes")
+    assert_refused(capsys, ["sweep", "fig5", "--workers", "0"], "argument --workers")
+    bad = tmp_path / "bad.json"
+    bad.write_text("{")
+    assert_refused(capsys, ["sweep", bad], "not valid JSON")
+    a_file = tmp_path / "f"
+    a_file.write_text("x")
+    assert_refused(capsys, ["sweep", "n5-fragile", "--out", a_file], "is a file")
+    sem = tmp_path / "sem.json"
+    sem.write_text(json.dumps({"name": "s", "figure": "table", "episodes": 1, "judge": "conservative",
+                               "policies": ["policies/rarl-k2-conservative.safetensors"], "n_objects": [3],
+                               "selectors": ["dynamic-knn"], "semantics": ["99999999999999999999 fragile"]}))
+    assert_refused(capsys, ["sweep", sem, "--out", tmp_path / "o"], "at most 8 objects")
+
+
+def test_sweep_of_missing_policies_only_is_an_error(capsys, tmp_path):
+    cfg = tmp_path / "s.json"
+    cfg.write_text(json.dumps({"name": "s", "figure": "table", "episodes": 1, "judge": "conservative",
+                               "policies": [str(tmp_path / "rarl-k2-conservative.safetensors")], "n_objects": [3],
+                               "selectors": ["dynamic-knn"]}))
+    assert_refused(capsys, ["sweep", cfg, "--out", tmp_path / "o"], "every cell of sweep")
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["demo", "--seed", "-1"], "argument --seed"),
+    (["demo", "--n-objects", "99"], "argument --n-objects"),
+    (["render-query", "--seed", "-1"], "argument --seed"),
+    (["render-query", "--k", "0"], "argument --k"),
+    (["constraint-matrix", "--objects-per-scene", "0"], "argument --objects-per-scene"),
+    (["constraint-matrix", "--seed", "-3"], "argument --seed"),
+    (["classify-constraints", "--vlm-backend", "openai", "--vlm-timeout", "nan", "mug"], "argument --vlm-timeout"),
+    (["classify-constraints", "--vlm-backend", "openai", "--vlm-attempts", "0", "mug"], "argument --vlm-attempts"),
+])
+def test_other_commands_refuse_bad_numbers(capsys, argv, message):
+    assert_refused(capsys, argv, message)
+
+
+def test_output_paths_are_checked_before_work(capsys, tmp_path):
+    a_file = tmp_path / "f"
+    a_file.write_text("x")
+    assert_refused(capsys, ["demo", "--no-video", "--out", a_file], "is a file")
+    assert_refused(capsys, ["render-query", "--vlm-backend", "none", "--out", a_file / "q"], "is a file")
+    assert_refused(capsys, ["constraint-matrix", "--trials", "1", "--json", tmp_path], "is a folder")
+    assert_refused(capsys, ["constraint-matrix", "--trials", "1", "--json", a_file / "m.json"], "is a file")

@@ -1,0 +1,63 @@
+"""The held-out name list v2 measures generalisation: it shares no word with any example name."""
+
+from __future__ import annotations
+
+import json
+import re
+from importlib import resources
+
+DATA = resources.files("safemanip.semantics").joinpath("data")
+
+
+def words(name: str) -> set[str]:
+    """Lower-case words of a name and their naive singulars (so 'mugs' and 'mug' count as one word)."""
+    out = set()
+    for w in re.findall(r"[a-z]+", name.lower()):
+        out |= {w, re.sub(r"(es|s)$", "", w)}
+    return out
+
+
+def example_words() -> set[str]:
+    vocab: set[str] = set()
+    for path in DATA.iterdir():
+        if path.name.startswith("class_examples_v") and path.name.endswith(".json"):
+            for names in json.loads(path.read_text())["classes"].values():
+                for n in names:
+                    vocab |= words(n)
+    return vocab
+
+
+def heldout_v2() -> dict[str, list[str]]:
+    return json.loads(DATA.joinpath("heldout_names_v2.json").read_text())["classes"]
+
+
+def test_heldout_v2_shares_no_word_with_any_example_name():
+    vocab = example_words()
+    assert len(vocab) > 200
+    shared = {n: sorted(words(n) & vocab) for names in heldout_v2().values() for n in names if words(n) & vocab}
+    assert not shared, f"held-out names sharing a word with an example name: {shared}"
+
+
+def test_heldout_v2_is_big_enough_for_a_two_percent_unsafe_rate():
+    held = heldout_v2()
+    assert len(held["fragile"]) >= 50 and min(len(v) for v in held.values()) >= 30
+    all_names = [n for v in held.values() for n in v]
+    assert len(all_names) == len(set(all_names))
+
+
+def test_measured_figures_on_heldout_v2_and_the_catalog():
+    """The figures in the README, measured once (each name classified alone; deterministic). Neither v3 nor
+    v4 meets issue 11's targets on the v2 list (unsafe-error rate <= 2 %, balanced accuracy >= 0.85)."""
+    from safemanip.semantics.commands import name_confusion
+    from safemanip.semantics.semantic_backend import SemanticBackend
+
+    expected = {("v3", "heldout-v2"): (6, 0.790), ("v4", "heldout-v2"): (5, 0.811),
+                ("v3", "catalog"): (0, 0.861), ("v4", "catalog"): (1, 0.831)}
+    for version in ("v3", "v4"):
+        backend = SemanticBackend(examples_file=version)
+        for objects in ("heldout-v2", "catalog"):
+            r = name_confusion(backend, objects)
+            unsafe, bal = expected[(version, objects)]
+            assert r["names"] == (115 if objects == "heldout-v2" else 35)
+            assert sum(r["counts"]["no_contact"].values()) - r["counts"]["no_contact"]["no_contact"] == unsafe, r["wrong"]
+            assert abs(r["balanced_accuracy"] - bal) < 0.0015, r
