@@ -48,7 +48,7 @@ def policy_file(path: Path, tensors=None, meta=None, fmt=POLICY_FORMAT, raw_meta
                    "layer1.bias": np.zeros(3, np.float32)}
     if meta is None:
         meta = {"algorithm": "rarl", "k": 1, "constraints": "conservative", "obs_dim": 26, "act_dim": 3,
-                "hidden": [8], "env_kwargs": {"n_objects": 1, "max_episode_steps": 300}}
+                "hidden": [8], "env_kwargs": {"n_objects": 1, "max_episode_steps": 300, "embodiment": "panda"}}
     save_file(tensors, str(path), metadata={"format": fmt, "meta": raw_meta if raw_meta is not None else json.dumps(meta)})
     return str(path)
 
@@ -92,6 +92,10 @@ def _bad_policies(tmp: Path) -> dict[str, tuple[str, str]]:
         "k": "two", "constraints": "conservative", "env_kwargs": {}}), "not a slot count")
     files["toy-policy"] = (policy_file(tmp / "toy.safetensors", meta={
         "k": 0, "constraints": "conservative", "env_kwargs": {"env": "toy-double-integrator"}}), "not the slide-out task")
+    from test_evaluation import make_policy
+
+    files["policy-from-before-the-arm"] = (make_policy(tmp / "legacy.safetensors", 2, embodiment=None),
+                                           "predates the Panda arm")
     files["missing-file"] = (str(tmp / "nowhere.safetensors"), "no policy file")
     files["folder-without-policy"] = (str(tmp), "holds no policy.safetensors")
     return files
@@ -99,8 +103,8 @@ def _bad_policies(tmp: Path) -> dict[str, tuple[str, str]]:
 
 BAD_POLICIES = ["truncated", "empty", "text", "huge-header", "header-not-json", "bad-offsets", "not-a-policy",
                 "missing-key", "meta-not-json", "meta-nan", "nan-weights", "shapes-do-not-chain",
-                "meta-shape-mismatch", "meta-lacks-k", "meta-k-not-int", "toy-policy", "missing-file",
-                "folder-without-policy"]
+                "meta-shape-mismatch", "meta-lacks-k", "meta-k-not-int", "toy-policy", "policy-from-before-the-arm",
+                "missing-file", "folder-without-policy"]
 
 
 @pytest.mark.parametrize("case", BAD_POLICIES)
@@ -111,10 +115,24 @@ def test_eval_refuses_a_bad_policy_file(capsys, tmp_path, case):
     assert not out.exists()
 
 
-@pytest.mark.parametrize("case", ["truncated", "nan-weights", "missing-key"])
+@pytest.mark.parametrize("case", ["truncated", "nan-weights", "missing-key", "policy-from-before-the-arm"])
 def test_demo_refuses_a_bad_policy_file(capsys, tmp_path, case):
     path, message = _bad_policies(tmp_path)[case]
     assert_refused(capsys, ["demo", "--policy", path, "--no-video", "--out", tmp_path / "d"], message)
+
+
+@pytest.mark.parametrize("command", ["eval", "demo"])
+def test_a_policy_from_another_embodiment_is_refused(capsys, tmp_path, command):
+    """A Panda policy asked to drive the hand (and back) is refused before anything runs, saying why and what to do."""
+    from test_evaluation import make_policy
+
+    for trained, wanted in (("panda", "hand"), ("hand", "panda")):
+        path = make_policy(tmp_path / f"{trained}.safetensors", 2, embodiment=trained)
+        out = tmp_path / f"out-{trained}"
+        extra = ["--episodes", "1", "--workers", "1"] if command == "eval" else ["--no-video"]
+        assert_refused(capsys, [command, "--policy", path, "--embodiment", wanted, "--out", out, *extra],
+                       f"was trained on the '{trained}' embodiment and cannot drive the '{wanted}'")
+        assert not out.exists()
 
 
 # ------------------------------------------------------------------------------------------ eval flags

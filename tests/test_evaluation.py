@@ -20,7 +20,7 @@ from safemanip.selection.selectors import ConservativeConstraints, DynamicKNN, G
 from safemanip.selection.view import EnvViewBuilder
 
 
-def make_policy(path, k, constraints="conservative", hidden=(16, 16), seed=0, goal_seeker=False):
+def make_policy(path, k, constraints="conservative", hidden=(16, 16), seed=0, goal_seeker=False, embodiment="panda"):
     """A tiny random MLP policy file, or (goal_seeker) a one-layer one that drives the box at the goal:
     the latter hits clutter within a few steps, so collisions of both kinds show up in short runs."""
     rng = np.random.default_rng(seed)
@@ -40,7 +40,10 @@ def make_policy(path, k, constraints="conservative", hidden=(16, 16), seed=0, go
                        np.zeros(sizes[i + 1], np.float32)]
     meta = {"algorithm": "rarl", "k": k, "constraints": constraints, "obs_dim": d, "act_dim": 3,
             "hidden": list(hidden), "env_kwargs": {"n_objects": k, "constraints": constraints,
-                                                   "near_path_fraction": 0.5, "max_episode_steps": 300}}
+                                                   "near_path_fraction": 0.5, "max_episode_steps": 300,
+                                                   "embodiment": embodiment}}
+    if embodiment is None:  # a policy from before the Panda arm: its metadata names no embodiment
+        del meta["env_kwargs"]["embodiment"]
     return str(save_policy(path, arrays, meta))
 
 

@@ -41,13 +41,15 @@ def write_video(frames: list[np.ndarray], path_stem: Path, fps: int) -> Path:
 
 def run_demo(out_dir: str | Path = "demo_output", controller: str = "policy", policy: str = DEFAULT_POLICY,
              seed: int = DEFAULT_SCENE["seed"], n_objects: int = DEFAULT_SCENE["n_objects"], video: bool = True,
-             camera: str = "front", selector: str = "dynamic-knn", fps: int = 50, slowmo: float = 1.0) -> DemoResult:
+             camera: str = "front", selector: str = "dynamic-knn", fps: int = 50, slowmo: float = 1.0,
+             embodiment: str | None = None) -> DemoResult:
     """One rollout in the default cluttered scene (ground-truth semantics judge every object).
 
     ``controller="policy"``: a shipped or trained policy sees the ``selector``'s k relevant objects
     through the reducer; ``"scripted"``: the fast-pull-then-slide baseline that ignores the clutter.
     The video has ``fps`` frames per simulated second (rendered between control steps, from inside the
-    physics substeps) and plays ``slowmo`` times slower than real time.
+    physics substeps) and plays ``slowmo`` times slower than real time. ``embodiment``: the robot (default:
+    the policy's own, the Panda for the scripted controller); a policy from another one is refused.
     """
     from safemanip.control.scripted import ScriptedController
     from safemanip.env.slide_out import SlideOutEnv
@@ -58,9 +60,18 @@ def run_demo(out_dir: str | Path = "demo_output", controller: str = "policy", po
         raise ValueError(f"--fps must be one of {VIDEO_FPS} frames per simulated second, got {fps!r}")
     if not (isinstance(slowmo, (int, float)) and 1.0 <= slowmo <= 100.0):
         raise ValueError(f"--slowmo must be a number from 1 (real time) to 100, got {slowmo!r}")
+    if controller == "policy":  # the policy file is checked before anything is built or written
+        from safemanip.rl.checkpoint import embodiment_problem, load_policy, policy_embodiment
+
+        actor, meta = load_policy(policy)
+        problem = embodiment_problem(meta, embodiment, f"--policy {policy}")
+        if problem:
+            raise ValueError(problem)
+        embodiment = policy_embodiment(meta)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    env = SlideOutEnv(n_objects=n_objects, render_mode="rgb_array" if video else None, slot_order="nearest")
+    env = SlideOutEnv(n_objects=n_objects, render_mode="rgb_array" if video else None, slot_order="nearest",
+                      embodiment=embodiment or "panda")
     frames: list[np.ndarray] = []
     trace: list[dict] = []
     selections: list[list[str]] = []
@@ -96,11 +107,10 @@ def run_demo(out_dir: str | Path = "demo_output", controller: str = "policy", po
         agent_desc = "scripted (fast pull, then a slide to the goal; ignores the clutter)"
     else:
         from safemanip.evaluation.episode import run_episode
-        from safemanip.rl.checkpoint import load_policy, resolve_policy
+        from safemanip.rl.checkpoint import resolve_policy
         from safemanip.selection.reducer import Reducer
         from safemanip.evaluation.registry import make_constraint_selector, make_object_selector
 
-        actor, meta = load_policy(policy)
         k = int(meta["k"])
         if n_objects < k:
             raise ValueError(f"the policy needs at least k={k} objects in the scene; use --n-objects {k} or more")
@@ -125,6 +135,7 @@ def run_demo(out_dir: str | Path = "demo_output", controller: str = "policy", po
     summary = {
         "outcome": event, "steps": steps, "object": culprit, "controller": agent_desc,
         "scene": {"seed": seed, "objects": list(env.names), "constraints": list(env.constraints)},
+        "embodiment": env.embodiment_name,
         "video": str(video_path) if video_path else None, "video_frames": len(frames),
         "video_fps_simulated": fps if video else None, "slowmo": slowmo if video else None,
         "wall_time_s": round(wall, 3),

@@ -14,7 +14,7 @@ def _cmd_demo(args) -> int:
         raise CliError(problems[0])
     result = run_demo(out_dir=args.out, controller=args.controller, policy=args.policy, seed=args.seed,
                       n_objects=args.n_objects, video=not args.no_video, camera=args.camera, selector=args.selector,
-                      fps=args.fps, slowmo=args.slowmo)
+                      fps=args.fps, slowmo=args.slowmo, embodiment=args.embodiment)
     print_report(result, result.summary)
     return 0
 
@@ -39,6 +39,8 @@ def register(sub) -> None:
     demo.add_argument("--seed", type=SEED, default=7)
     demo.add_argument("--n-objects", type=int_in(0, MAX_OBJECTS), default=4, help="objects in the scene (N)")
     demo.add_argument("--camera", default="front", choices=["front", "top"])
+    demo.add_argument("--embodiment", choices=["panda", "hand"],
+                      help="robot (default: the policy's own; the Panda for --controller scripted)")
     demo.add_argument("--no-video", action="store_true", help="skip rendering (faster, no OpenGL needed)")
     demo.add_argument("--fps", type=int, default=50, choices=[20, 25, 50, 100],
                       help="video frames per simulated second, rendered between control steps (default 50)")

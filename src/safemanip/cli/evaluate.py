@@ -39,8 +39,8 @@ def _cmd_eval(args) -> int:
                       vlm_base_url=args.vlm_base_url, vlm_cache=args.vlm_cache, vlm_cache_only=args.vlm_cache_only,
                       vlm_timeout=args.vlm_timeout, vlm_episode_budget=args.vlm_episode_budget,
                       vlm_run_budget=args.vlm_run_budget, vlm_max_failures=args.vlm_max_failures,
-                      max_episode_steps=args.max_episode_steps, chunk_size=args.chunk_size,
-                      progress=not args.no_progress)
+                      max_episode_steps=args.max_episode_steps, embodiment=args.embodiment,
+                      chunk_size=args.chunk_size, progress=not args.no_progress)
     report = evaluate(req)
     print(report["text"])
     if args.out:
@@ -103,6 +103,8 @@ def register(subparsers) -> None:
     ev.add_argument("--pad", action="store_true",
                     help="allow N < k: fill empty policy slots with far-away dummy objects")
     ev.add_argument("--max-episode-steps", type=int_in(1, 100_000), help="override the policy's episode length")
+    ev.add_argument("--embodiment", choices=["panda", "hand"],
+                    help="robot to evaluate on (default: the policy's own; another one is refused)")
     ev.add_argument("--chunk-size", type=int_in(1, 100_000), help="episodes per worker task (default: about 8 tasks per worker)")
     vlm = ev.add_argument_group("semantic backend (for --selector dynamic-vlm / --constraints vlm)")
     vlm.add_argument("--vlm-backend", choices=VLM_BACKENDS,

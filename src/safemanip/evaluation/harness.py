@@ -77,6 +77,8 @@ class EvalRequest:
     vlm_run_budget: float | None = None
     vlm_max_failures: int | None = None
     max_episode_steps: int | None = None
+    embodiment: str | None = None
+    """Robot to evaluate on (default: the one the policy was trained on; another one is refused)."""
     chunk_size: int | None = None
     progress: bool = False
 
@@ -92,8 +94,8 @@ class Prepared:
 
 
 def _policy_problems(req: EvalRequest, problems: list[str]):
-    from safemanip.rl.checkpoint import load_policy
     from safemanip.env.observation import observation_dim
+    from safemanip.rl.checkpoint import embodiment_problem, load_policy
 
     try:
         actor, meta = load_policy(req.policy)
@@ -120,6 +122,10 @@ def _policy_problems(req: EvalRequest, problems: list[str]):
     if obs_dim != observation_dim(int(meta["k"])):
         problems.append(f"--policy {req.policy}: input size {obs_dim} does not match k={meta['k']} "
                         f"(expected {observation_dim(int(meta['k']))})")
+        return None, None
+    mismatch = embodiment_problem(meta, req.embodiment, f"--policy {req.policy}")
+    if mismatch:
+        problems.append(mismatch)
         return None, None
     arrays = [a for w, b in actor.weights for a in (w.T.copy(), b)]
     return arrays, meta
@@ -236,7 +242,8 @@ def prepare(req: EvalRequest) -> Prepared:
     env_train = meta["env_kwargs"]
     env_kwargs = {"n_objects": n, "classes": classes, "constraints": JUDGES[req.judge],
                   "near_path_fraction": env_train.get("near_path_fraction", 0.5),
-                  "max_episode_steps": req.max_episode_steps or env_train.get("max_episode_steps", 300)}
+                  "max_episode_steps": req.max_episode_steps or env_train.get("max_episode_steps", 300),
+                  "embodiment": env_train["embodiment"]}
     options = SelectorOptions(interval=req.interval, vlm_backend=vlm_backend, vlm_model=req.vlm_model,
                               vlm_base_url=req.vlm_base_url, vlm_cache=req.vlm_cache,
                               vlm_cache_only=req.vlm_cache_only, vlm_timeout=req.vlm_timeout,

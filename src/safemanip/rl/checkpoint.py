@@ -250,5 +250,35 @@ def load_policy(path: str | Path):
     return NumpyActor(arrays), meta
 
 
+EMBODIMENTS = ("panda", "hand")
+
+
+def embodiment_problem(meta: dict, wanted: str | None, name: str) -> str | None:
+    """Why the policy ``name`` (with metadata ``meta``) cannot drive embodiment ``wanted`` (None: its own), or None.
+
+    A policy's input and its learned dynamics belong to the robot it was trained on; and a policy whose
+    metadata names no embodiment predates the Panda arm: it was trained on the first version's task (a
+    floating hand, success on passing the goal), which no longer exists.
+    """
+    env_kwargs = meta.get("env_kwargs") if isinstance(meta.get("env_kwargs"), dict) else {}
+    trained = env_kwargs.get("embodiment")
+    if trained is None:
+        return (f"{name} predates the Panda arm: it was trained on the first version's task (a floating hand, "
+                f"success on passing the goal, safety checked at 20 Hz), which this version no longer has; train a "
+                f"new policy with `safemanip train --embodiment panda ...` (or `--embodiment hand` for the ablation)")
+    if trained not in EMBODIMENTS:
+        return f"{name}: its metadata names an unknown embodiment {trained!r}; use one of {list(EMBODIMENTS)}"
+    if wanted is not None and wanted != trained:
+        return (f"{name} was trained on the {trained!r} embodiment and cannot drive the {wanted!r}: its inputs and "
+                f"learned dynamics belong to that robot. Use --embodiment {trained}, or train a policy for the "
+                f"{wanted!r} (safemanip train --embodiment {wanted} ...)")
+    return None
+
+
+def policy_embodiment(meta: dict) -> str:
+    """The embodiment a (checked) policy was trained on."""
+    return meta["env_kwargs"]["embodiment"]
+
+
 def _refuse_constant(name: str):
     raise ValueError(f"{name} is not allowed")
