@@ -62,13 +62,19 @@ def _fsync_dir(path: Path) -> None:
 
 
 # ------------------------------------------------------------------------------------------ policies
-def save_policy(path: Path, actor_arrays: list[np.ndarray], meta: dict) -> Path:
-    """One self-describing file: actor weights plus JSON metadata in the safetensors header."""
+def save_policy(path: Path, actor_arrays: list[np.ndarray] | dict[str, np.ndarray], meta: dict) -> Path:
+    """One self-describing file: actor weights plus JSON metadata in the safetensors header. The header's
+    ``network`` ('mlp' or 'set') says which actor class the weights belong to."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tensors = {f"layer{i // 2}.{'weight' if i % 2 == 0 else 'bias'}": a for i, a in enumerate(actor_arrays)}
+    if isinstance(actor_arrays, dict):  # set network: parameters by name
+        network, tensors = "set", {f"set.{k}": np.ascontiguousarray(a) for k, a in actor_arrays.items()}
+    else:
+        network = "mlp"
+        tensors = {f"layer{i // 2}.{'weight' if i % 2 == 0 else 'bias'}": a for i, a in enumerate(actor_arrays)}
     tmp = path.with_suffix(".tmp")
-    save_numpy(tensors, str(tmp), metadata={"format": POLICY_FORMAT, "meta": json.dumps(meta)})
+    save_numpy(tensors, str(tmp), metadata={"format": POLICY_FORMAT, "network": network,
+                                            "meta": json.dumps({**meta, "network": network})})
     os.replace(tmp, path)
     return path
 
@@ -95,7 +101,7 @@ def load_policy(path: str | Path):
     """(NumpyActor, meta) from a policy file, a shipped policy's name, or a run folder (its policy)."""
     from safetensors import safe_open
 
-    from safemanip.rl.numpy_actor import NumpyActor
+    from safemanip.rl.numpy_actor import NumpyActor, NumpySetActor
 
     path = resolve_policy(path)
     if path.is_dir():
@@ -113,6 +119,8 @@ def load_policy(path: str | Path):
         raise PolicyFileError(f"{path} is not a safemanip policy (format {header.get('format')!r}, "
                               f"expected {POLICY_FORMAT!r})")
     tensors = load_numpy(str(path))
+    if header.get("network", "mlp") == "set":  # files before the set network have no "network": flat MLP
+        return NumpySetActor({k[len("set."):]: v for k, v in tensors.items()}), json.loads(header["meta"])
     n_layers = len(tensors) // 2
     arrays = []
     for i in range(n_layers):
