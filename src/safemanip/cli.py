@@ -84,6 +84,17 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--eval-episodes", dest="eval_episodes", type=int)
     tr.add_argument("--checkpoint-every-s", dest="checkpoint_every_s", type=float)
     tr.add_argument("--no-progress", action="store_true")
+    # learner speed, network, selection-aware training and rollout backend (TrainConfig fields of the same names)
+    tr.add_argument("--device", choices=["auto", "cpu", "cuda"], help="learner device (default auto)")
+    tr.add_argument("--precision", choices=["auto", "bf16", "fp32"], help="forward passes in bf16 autocast or fp32")
+    tr.add_argument("--network", choices=["mlp", "set"], help="flat MLP (paper) or object-set network (any k)")
+    tr.add_argument("--scene-objects", dest="scene_objects", type=int,
+                    help="selection-aware training: N objects per scene, the selector picks the policy's k")
+    tr.add_argument("--selector", choices=["dynamic-knn", "dynamic-radius"], help="selector for selection-aware training")
+    tr.add_argument("--selection-radius", dest="selection_radius", type=float, help="dynamic-radius radius [m]")
+    tr.add_argument("--backend", choices=["local", "ray"], help="rollout workers as local processes or Ray actors")
+    tr.add_argument("--address", help="Ray cluster address (HOST:PORT); default: a local Ray instance")
+    tr.add_argument("--workers", dest="n_collectors", type=int, help="rollout workers (processes or Ray actors)")
     tr.set_defaults(func=_cmd_train)
 
     from safemanip.evaluation.commands import register as register_evaluation

@@ -71,6 +71,31 @@ class TrainConfig:
     envs_per_collector: int = 4
     torch_threads: int = 1
     """Threads for the learner's PyTorch; the collectors use the other core(s)."""
+    # -- learner speed, network, selection-aware training, rollout backend (issue 10)
+    device: str = "auto"
+    """Learner device: 'auto' (CUDA if PyTorch sees a GPU, else CPU), 'cpu' or 'cuda'. Rollouts stay on CPUs."""
+    precision: str = "auto"
+    """Forward passes in 'bf16' (autocast; fp32 master weights, losses and targets) or 'fp32'; 'auto' takes
+    bf16 only where it is native and measured faster at start-up (rl/precision.py)."""
+    network: str = "mlp"
+    """'mlp': the paper's flat MLPs over a fixed k; 'set': a shared per-object encoder pooled over the slots
+    (order-invariant, absent slots masked), one network for any number of objects."""
+    set_embed: int = 128
+    """Width of the set network's per-object encoder (two ReLU layers)."""
+    scene_objects: int | None = None
+    """Selection-aware training: objects in each training scene (N >= n_objects); the object selector picks
+    the policy's slots every ``selection_interval`` steps and the judge covers all N. None: N = n_objects."""
+    selector: str = "dynamic-knn"
+    """Object selector for selection-aware training: 'dynamic-knn' (k nearest) or 'dynamic-radius' (every
+    object within ``selection_radius``, at most n_objects; needs network='set')."""
+    selection_radius: float = 0.35
+    """dynamic-radius: horizontal distance from the held box's centre [m] within which objects are picked."""
+    selection_interval: int = 4
+    """Control steps between re-selections during selection-aware training (the paper's 4)."""
+    backend: str = "local"
+    """Rollout workers as local processes ('local') or Ray actors ('ray'); the learner stays in this process."""
+    address: str | None = None
+    """Ray cluster address (HOST:PORT or 'auto'); None starts a local Ray instance. Only with backend='ray'."""
     # -- evaluation, logging, checkpoints
     eval_every_s: float = 120.0
     eval_episodes: int = 50
@@ -111,8 +136,47 @@ class TrainConfig:
             problems.append(f"env_factory must be 'module:Class', got {self.env_factory!r}")
         if not isinstance(self.extra_env_kwargs, dict) or (self.extra_env_kwargs and self.env_factory is None):
             problems.append("extra_env_kwargs must be a dict, and is only used with env_factory set")
+        problems += self._learner_problems()
         if problems:
             raise ConfigError("invalid training config:\n  - " + "\n  - ".join(problems))
+
+    def _learner_problems(self) -> list[str]:
+        """Checks of the issue-10 fields (device, precision, network, selection-aware training, backend)."""
+        problems = []
+        for name, allowed in (("device", ("auto", "cpu", "cuda")), ("precision", ("auto", "bf16", "fp32")),
+                              ("network", ("mlp", "set")), ("selector", ("dynamic-knn", "dynamic-radius")),
+                              ("backend", ("local", "ray"))):
+            value = getattr(self, name)
+            if value not in allowed and not (name == "device" and str(value).startswith("cuda:")):
+                problems.append(f"{name} must be one of {allowed}, got {value!r}")
+        if self.set_embed < 1 or self.selection_interval < 1 or self.selection_radius <= 0:
+            problems.append("set_embed >= 1, selection_interval >= 1 and selection_radius > 0 are required")
+        if self.scene_objects is not None:
+            if not self.n_objects <= self.scene_objects <= MAX_OBJECTS:
+                problems.append(f"scene_objects must be in n_objects..{MAX_OBJECTS} ({self.n_objects}..), "
+                                f"got {self.scene_objects}")
+            if self.env_factory is not None:
+                problems.append("scene_objects (selection-aware training) works on the slide-out env, not env_factory")
+        if self.selector == "dynamic-radius" and self.network != "set":
+            problems.append("selector 'dynamic-radius' hands the policy a varying number of objects: use network 'set'")
+        if self.address is not None and self.backend != "ray":
+            problems.append("address only applies to backend 'ray'")
+        return problems
+
+    @property
+    def selection_aware(self) -> bool:
+        """Training scenes hold more objects than the policy's slots, or the slots vary (dynamic-radius)."""
+        return self.env_factory is None and (self.scene_objects is not None or self.selector == "dynamic-radius")
+
+    @property
+    def rollout_env_kwargs(self) -> dict:
+        """The env the rollout workers and the periodic evaluation run: ``env_kwargs``, or with selection-aware
+        training the full-scene env seen through the selector (``selection.training_env``)."""
+        if not self.selection_aware:
+            return self.env_kwargs
+        return {"factory": "safemanip.selection.training_env:SelectedSlotsEnv", **self.env_kwargs,
+                "n_objects": self.scene_objects or self.n_objects, "k": self.n_objects, "selector": self.selector,
+                "radius": self.selection_radius, "interval": self.selection_interval}
 
     @property
     def env_kwargs(self) -> dict:

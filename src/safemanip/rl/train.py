@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import csv
 import json
-import multiprocessing as mp
 import queue
 import time
 from collections import Counter, deque
@@ -17,7 +16,7 @@ import torch
 from safemanip.evaluation.rollout import evaluate_actor
 from safemanip.rl.buffer import ReplayBuffer
 from safemanip.rl.checkpoint import find_checkpoint, read_checkpoint, save_policy, write_checkpoint
-from safemanip.rl.collector import env_factory, run_collector
+from safemanip.rl.collector import env_factory, make_pool
 from safemanip.rl.config import ConfigError, TrainConfig
 from safemanip.rl.learner import Learner
 from safemanip.rl.networks import actor_arrays
@@ -53,13 +52,13 @@ class ScalarLog:
 def policy_meta(cfg: TrainConfig, obs_dim: int, act_dim: int, eval_result: dict | None, env_steps: int, updates: int,
                 wall_s: float, command: str | None) -> dict:
     return {"algorithm": cfg.algorithm, "k": cfg.n_objects, "constraints": cfg.constraints, "obs_dim": obs_dim,
-            "act_dim": act_dim, "hidden": list(cfg.hidden), "env_kwargs": cfg.env_kwargs, "train_config": json.loads(cfg.to_json()),
+            "act_dim": act_dim, "hidden": list(cfg.hidden), "network": cfg.network, "env_kwargs": cfg.env_kwargs, "train_config": json.loads(cfg.to_json()),
             "env_steps": env_steps, "updates": updates, "wall_s": round(wall_s, 1), "eval": eval_result,
             "train_command": command}
 
 
 def evaluate_now(actor, cfg: TrainConfig, episodes: int) -> dict:
-    records = evaluate_actor(actor_arrays(actor), cfg.env_kwargs, [EVAL_SEED_BASE + i for i in range(episodes)])
+    records = evaluate_actor(actor_arrays(actor), cfg.rollout_env_kwargs, [EVAL_SEED_BASE + i for i in range(episodes)])
     events = Counter(r["event"] for r in records)
     result = {"episodes": episodes, "success": events["success"] / episodes,
               "mean_length": float(np.mean([r["length"] for r in records]))}
@@ -84,10 +83,12 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True, command
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.torch_threads)
 
-    probe = env_factory(cfg.env_kwargs)
+    probe = env_factory(cfg.rollout_env_kwargs)
     obs_dim, act_dim = probe.observation_space.shape[0], probe.action_space.shape[0]
     probe.close()
     learner = Learner(obs_dim, act_dim, cfg)
+    print(f"learner: {learner.precision.device}, {learner.precision.dtype} ({learner.precision.reason}); "
+          f"network {cfg.network}; rollouts: {cfg.backend}, {cfg.n_collectors} worker(s)")
     buffer = ReplayBuffer(cfg.buffer_size, obs_dim, act_dim)
     env_steps = updates = 0
     elapsed_before = 0.0
@@ -104,27 +105,11 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True, command
         rng = np.random.default_rng([cfg.seed, restarts])
         print(f"resuming {run_dir} from {env_steps} env steps / {updates} updates ({elapsed_before / 60:.1f} min)")
 
-    # ---- rollout workers on the other core(s)
-    ctx = mp.get_context("spawn")
-    data_q = ctx.Queue(maxsize=64)
-    weights_qs = [ctx.Queue(maxsize=2) for _ in range(cfg.n_collectors)]
-    stop = ctx.Event()
-    counters = ctx.Array("q", [env_steps, updates])
-    workers = [ctx.Process(target=run_collector, daemon=True,
-                           args=(w, cfg.env_kwargs, cfg.seed + 1000 * restarts, cfg.envs_per_collector, data_q,
-                                 weights_qs[w], stop, counters, cfg.random_steps, cfg.exploration_noise,
-                                 cfg.learning_starts, cfg.env_steps_per_update))
-               for w in range(cfg.n_collectors)]
-    for w in workers:
-        w.start()
+    # ---- rollout workers on the other core(s): local processes or Ray actors
+    pool = make_pool(cfg, cfg.rollout_env_kwargs, cfg.seed + 1000 * restarts, env_steps, updates)
 
     def broadcast() -> None:
-        arrays = actor_arrays(learner.actor)
-        for q in weights_qs:
-            try:
-                q.put_nowait(arrays)
-            except queue.Full:
-                pass
+        pool.broadcast(actor_arrays(learner.actor))
 
     broadcast()
     log = ScalarLog(run_dir)
@@ -172,14 +157,13 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True, command
             got = 0
             while True:
                 try:
-                    chunk, episodes = data_q.get(timeout=0.05 if buffer.size < cfg.learning_starts else 0.0) \
-                        if got == 0 else data_q.get_nowait()
+                    chunk, episodes = pool.get(0.05 if buffer.size < cfg.learning_starts and got == 0 else 0.0)
                 except queue.Empty:
                     break
                 buffer.add_many(chunk)
                 recent_events.extend(e for e, _ in episodes)
                 got += 1
-            env_steps = int(counters[0])
+            env_steps = pool.env_steps
             # ---- learn, at the configured update-to-data ratio
             can_update = buffer.size >= cfg.learning_starts and \
                 updates < (env_steps - cfg.learning_starts) / cfg.env_steps_per_update + 1
@@ -188,7 +172,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True, command
                                      else max(env_steps / cfg.total_env_steps, elapsed() / (60 * cfg.minutes)))
                 last_metrics = learner.update(buffer.sample(cfg.batch_size, rng), gamma)
                 updates += 1
-                counters[1] = updates
+                pool.set_updates(updates)
                 if updates % SYNC_EVERY == 0:
                     broadcast()
             elif got == 0:
@@ -219,11 +203,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True, command
                 save_checkpoint()
                 last_ckpt = time.perf_counter()
     finally:
-        stop.set()
-        for w in workers:
-            w.join(timeout=5)
-            if w.is_alive():
-                w.terminate()
+        pool.close()
         if bar is not None:
             bar.close()
     run_eval()
@@ -232,6 +212,6 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True, command
                 policy_meta(cfg, obs_dim, act_dim, last_eval_result, env_steps, updates, elapsed(), command))
     log.close()
     summary = {"env_steps": env_steps, "updates": updates, "wall_s": round(elapsed(), 1), "final_eval": last_eval_result,
-               "best_eval": best}
+               "best_eval": best, "learner": learner.precision.as_dict()}
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
     return run_dir
