@@ -185,7 +185,8 @@ class RayPool:
     def __init__(self, cfg, env_kwargs: dict, seed: int, env_steps: int, updates: int):
         import ray
 
-        if not ray.is_initialized():
+        self.owns_ray = not ray.is_initialized()
+        if self.owns_ray:
             ray.init(address=cfg.address, include_dashboard=False, log_to_driver=False)
         self.ray = ray
         self.cfg = cfg
@@ -237,6 +238,8 @@ class RayPool:
         for actor in self.actors:
             self.ray.kill(actor)
         self.actors, self.in_flight = [], {}
+        if self.owns_ray:  # a Ray instance (or cluster connection) this pool opened
+            self.ray.shutdown()
 
 
 def make_pool(cfg, env_kwargs: dict, seed: int, env_steps: int = 0, updates: int = 0):
