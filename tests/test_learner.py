@@ -234,3 +234,48 @@ def test_learner_updates_the_set_network_on_padded_batches():
     before = params(learner.actor)
     metrics = learner.update(b, 0.99)
     assert np.isfinite(list(metrics.values())).all() and not same(params(learner.actor), before)
+
+
+def test_checkpoint_tensors_round_trip_and_older_critic_checkpoints_resume():
+    torch.manual_seed(8)
+    cfg = TrainConfig(**SMALL)
+    learner = Learner(OBS, ACT, cfg)
+    b = batch()
+    for _ in range(2):
+        learner.update(b, 0.99)
+    back = Learner(OBS, ACT, cfg)
+    back.load_state_tensors(learner.state_tensors())
+    for x, y in zip(learner.state_tensors().values(), back.state_tensors().values()):
+        assert torch.equal(x, y)
+    # the older layout: one nn.Sequential per critic head, optimiser moments per head
+    old = {k: v for k, v in learner.state_tensors().items() if not k.startswith(("critic.", "critic_targ.", "critic_opt."))}
+    seps = [mlp([OBS + ACT, 32, 32, 1]) for _ in range(2)]
+    for prefix in ("critic.", "critic_targ."):
+        old.update({f"{prefix}heads.{h}.{k}": v for h, sep in enumerate(seps) for k, v in sep.state_dict().items()})
+    old.update({f"critic_opt.{i}.exp_avg": p.detach().clone() for i, p in enumerate(p for s in seps for p in s.parameters())})
+    old.update({f"critic_opt.{i}.exp_avg_sq": p.detach().clone() for i, p in enumerate(p for s in seps for p in s.parameters())})
+    old.update({f"critic_opt.{i}.step": torch.tensor(2.0) for i in range(12)})
+    resumed = Learner(OBS, ACT, cfg)
+    resumed.load_state_tensors(old)
+    o, a = torch.randn(3, OBS), torch.randn(3, ACT)
+    torch.testing.assert_close(resumed.critic(o, a)[1], seps[1](torch.cat([o, a], -1)).squeeze(-1), atol=1e-5, rtol=1e-5)
+    resumed.update(b, 0.99)  # the moments started afresh: it trains on
+
+
+def test_policy_file_records_the_network_and_loads_the_matching_actor(tmp_path):
+    from safemanip.rl.checkpoint import load_policy, save_policy
+
+    torch.manual_seed(9)
+    set_actor = SetActor(ACT, (32, 32), 16)
+    save_policy(tmp_path / "set.safetensors", actor_arrays(set_actor), {"k": 3, "constraints": "conservative"})
+    actor, meta = load_policy(tmp_path / "set.safetensors")
+    assert isinstance(actor, NumpySetActor) and meta["network"] == "set" and actor.obs_dim is None
+    obs = slots_present(torch.randn(4, observation_dim(3)))
+    with torch.no_grad():
+        np.testing.assert_allclose(actor(obs.numpy()), set_actor(obs).numpy(), atol=1e-5)
+    from safemanip.rl.networks import Actor
+
+    flat = Actor(OBS, ACT, (32, 32))
+    save_policy(tmp_path / "mlp.safetensors", actor_arrays(flat), {"k": 2})
+    actor, meta = load_policy(tmp_path / "mlp.safetensors")
+    assert isinstance(actor, NumpyActor) and meta["network"] == "mlp" and actor.obs_dim == OBS

@@ -138,5 +138,10 @@ class Learner:
                 parts = k.split(".")
                 if parts[0] == name:
                     state.setdefault(int(parts[1]), {})[parts[2]] = v
+            params = [p for group in opt.param_groups for p in group["params"]]
+            if any(pid >= len(params) or st["exp_avg"].shape != params[pid].shape for pid, st in state.items()):
+                # a checkpoint of the older two-module critic: its weights were converted, its moments cannot be
+                print(f"{name}: the checkpoint's optimiser moments do not fit this network layout; starting them afresh")
+                continue
             sd["state"] = state
             opt.load_state_dict(sd)
