@@ -212,6 +212,12 @@ def test_set_network_is_invariant_to_slot_order_and_padding():
         assert actor(obs[:, :ROBOT_DIM]).shape == (6, ACT)
 
 
+def test_numpy_actor_uses_the_env_observation_layout():
+    from safemanip.rl import numpy_actor
+
+    assert (numpy_actor.ROBOT_DIM, numpy_actor.SLOT_DIM) == (ROBOT_DIM, SLOT_DIM)  # kept torch- and env-free there
+
+
 def test_numpy_set_actor_matches_torch_for_any_number_of_slots():
     torch.manual_seed(6)
     actor = SetActor(ACT, (32, 32), 16)
