@@ -13,6 +13,8 @@ over the repeats, each measurement a fixed wall-clock slice after a warm-up:
   ours bf16      the same with ``precision="bf16"`` (autocast forward passes, fp32 master weights,
                  losses and targets). Only fast where bf16 is native (AVX512-BF16 / AMX / CUDA); the
                  start-up check in ``rl/precision.py`` says which this machine is.
+  ours fp32, set network   (``--with-set``) the object-set actor/critic on the same observations
+                 (random one-hots, so some slots count as absent: a cost figure, not a learning one).
   SB3 TD3        ``stable_baselines3.TD3.train()`` on identical networks (net_arch 3 x 256, AdamW,
                  twin critics, policy delay 2, batch as given) with its replay buffer pre-filled;
                  skipped with a note when stable-baselines3 is not installed (``pip install -e .[bench]``).
@@ -66,8 +68,8 @@ def timed(step, seconds: float, warmup: int = 10) -> float:
 
 
 # ------------------------------------------------------------------------------------------ the rows
-def ours(obs_dim: int, batch: int, precision: str, buf: ReplayBuffer):
-    learner = Learner(obs_dim, ACT_DIM, TrainConfig(batch_size=batch, precision=precision, device="cpu"))
+def ours(obs_dim: int, batch: int, precision: str, buf: ReplayBuffer, network: str = "mlp"):
+    learner = Learner(obs_dim, ACT_DIM, TrainConfig(batch_size=batch, precision=precision, device="cpu", network=network))
     rng = np.random.default_rng(1)
     return lambda i: learner.update(buf.sample(batch, rng), 0.99), learner.precision
 
@@ -145,6 +147,7 @@ def main() -> None:
     p.add_argument("--batches", type=int, nargs="+", default=[200, 1024])
     p.add_argument("--obs-dim", type=int, default=36, help="36 = the k=2 slide-out observation")
     p.add_argument("--no-bf16", action="store_true", help="skip the bf16 row (slow where bf16 is emulated)")
+    p.add_argument("--with-set", action="store_true", help="add a row for the object-set network (fp32)")
     args = p.parse_args()
     torch.set_num_threads(1)
     flags = cpu_bf16_flags()
@@ -155,6 +158,8 @@ def main() -> None:
         rows["ours fp32 (Learner.update)"], _ = ours(args.obs_dim, batch, "fp32", buf)
         if not args.no_bf16:
             rows["ours bf16 (Learner.update)"], prec = ours(args.obs_dim, batch, "bf16", buf)
+        if args.with_set:
+            rows["ours fp32, set network"], _ = ours(args.obs_dim, batch, "fp32", buf, "set")
         step = sb3(args.obs_dim, batch)
         if step is not None:
             rows["SB3 TD3 train()"] = step
