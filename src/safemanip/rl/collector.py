@@ -180,7 +180,9 @@ class RayPool:
     """``cfg.n_collectors`` Ray actors running ``RolloutWorker``; same interface as ``LocalPool``.
 
     Connects to ``cfg.address`` (a running cluster) or starts a local Ray instance, unless Ray is
-    already initialised (tests start a small one themselves)."""
+    already initialised (tests start a small one themselves). Random exploration is decided per chunk
+    (``env_steps < random_steps`` when the chunk is requested) where local workers decide per step, so
+    the switch to the actor can come up to one chunk per worker later."""
 
     def __init__(self, cfg, env_kwargs: dict, seed: int, env_steps: int, updates: int):
         import ray
