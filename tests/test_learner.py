@@ -285,3 +285,54 @@ def test_policy_file_records_the_network_and_loads_the_matching_actor(tmp_path):
     save_policy(tmp_path / "mlp.safetensors", actor_arrays(flat), {"k": 2})
     actor, meta = load_policy(tmp_path / "mlp.safetensors")
     assert isinstance(actor, NumpyActor) and meta["network"] == "mlp" and actor.obs_dim == OBS
+
+
+def test_learner_update_equals_a_plain_td3_step_with_separate_critics():
+    """Fused critic, fused AdamW and foreach Polyak change the speed, not the maths: four updates of the
+    Learner and of a plain loop (two nn.Sequential critics, default AdamW, a Python Polyak loop) from the
+    same weights end at the same parameters."""
+    torch.manual_seed(10)
+    cfg = TrainConfig(**SMALL, target_noise=0.0, policy_delay=2, polyak=0.9)
+    learner = Learner(OBS, ACT, cfg)
+    actor, actor_t = mlp([OBS, 32, 32, ACT]), mlp([OBS, 32, 32, ACT])
+    qs, qs_t = [mlp([OBS + ACT, 32, 32, 1]) for _ in range(2)], [mlp([OBS + ACT, 32, 32, 1]) for _ in range(2)]
+    with torch.no_grad():
+        for src, dst in ((learner.actor.net, actor), (learner.actor_targ.net, actor_t)):
+            for p, q in zip(src.parameters(), dst.parameters()):
+                q.copy_(p)
+        for stacked, seps in ((learner.critic.q, qs), (learner.critic_targ.q, qs_t)):
+            for h, sep in enumerate(seps):
+                for lin, w, b in zip([m for m in sep if isinstance(m, torch.nn.Linear)], stacked.weights, stacked.biases):
+                    lin.weight.copy_(w[h].T)
+                    lin.bias.copy_(b[h, 0])
+    opt_a = torch.optim.AdamW(actor.parameters(), lr=cfg.learning_rate)
+    opt_c = torch.optim.AdamW([p for q in qs for p in q.parameters()], lr=cfg.learning_rate)
+    gamma = 0.95
+    for i in range(1, 5):
+        b = batch(16, seed=i)
+        learner.update(b, gamma)
+        with torch.no_grad():  # the reach-avoid target from the smaller target head
+            x2 = torch.cat([b.next_obs, torch.tanh(actor_t(b.next_obs))], -1)
+            v = torch.minimum(qs_t[0](x2), qs_t[1](x2)).squeeze(-1)
+            v = torch.where(b.terminated, torch.minimum(b.next_l, b.next_g), v)
+            y = (1 - gamma) * torch.minimum(b.l, b.g) + gamma * torch.minimum(b.g, torch.maximum(b.l, v))
+        x = torch.cat([b.obs, b.act], -1)
+        loss = sum(((q(x).squeeze(-1) - y) ** 2).mean() for q in qs)
+        opt_c.zero_grad()
+        loss.backward()
+        opt_c.step()
+        if i % 2 == 0:
+            loss_a = -qs[0](torch.cat([b.obs, torch.tanh(actor(b.obs))], -1)).mean()
+            opt_a.zero_grad()
+            loss_a.backward()
+            opt_a.step()
+            with torch.no_grad():
+                for net, targ in [(actor, actor_t), *zip(qs, qs_t)]:
+                    for p, pt in zip(net.parameters(), targ.parameters()):
+                        pt.mul_(cfg.polyak).add_(p, alpha=1 - cfg.polyak)
+    for p, q in zip(learner.actor.net.parameters(), actor.parameters()):
+        torch.testing.assert_close(p, q, atol=1e-5, rtol=1e-4)
+    for stacked, seps in ((learner.critic.q, qs), (learner.critic_targ.q, qs_t)):
+        for h, sep in enumerate(seps):
+            for lin, w in zip([m for m in sep if isinstance(m, torch.nn.Linear)], stacked.weights):
+                torch.testing.assert_close(w[h].T, lin.weight, atol=1e-5, rtol=1e-4)
