@@ -141,3 +141,23 @@ def test_config_rejects_dynamic_radius_for_the_flat_mlp():
         TrainConfig(selector="dynamic-radius")
     with pytest.raises(ConfigError, match="scene_objects must be"):
         TrainConfig(n_objects=3, scene_objects=2)
+
+
+@pytest.mark.slow
+def test_train_runs_a_set_network_with_selection_aware_dynamic_k_and_records_it(tmp_path):
+    import json
+
+    from safemanip.rl.checkpoint import load_policy
+    from safemanip.rl.numpy_actor import NumpySetActor
+    from safemanip.rl.train import train
+
+    cfg = TrainConfig(n_objects=3, scene_objects=5, network="set", selector="dynamic-radius", set_embed=16,
+                      hidden=(32, 32), batch_size=32, buffer_size=5000, learning_starts=256, random_steps=256,
+                      eval_episodes=2, eval_every_s=60, checkpoint_every_s=60, log_every_s=60, envs_per_collector=2,
+                      env_steps_per_update=4.0, max_episode_steps=40, minutes=0.12, out_dir=str(tmp_path / "run"))
+    run = train(cfg, progress=False)
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["updates"] > 0 and summary["learner"]["dtype"] in ("fp32", "bf16") and summary["learner"]["reason"]
+    actor, meta = load_policy(run / "policy.safetensors")
+    assert isinstance(actor, NumpySetActor) and meta["network"] == "set" and meta["k"] == 3
+    assert meta["train_config"]["scene_objects"] == 5 and meta["env_kwargs"]["n_objects"] == 3  # eval sees a k=3 policy
