@@ -52,7 +52,7 @@ class ScalarLog:
 def policy_meta(cfg: TrainConfig, obs_dim: int, act_dim: int, eval_result: dict | None, env_steps: int, updates: int,
                 wall_s: float, command: str | None) -> dict:
     return {"algorithm": cfg.algorithm, "k": cfg.n_objects, "constraints": cfg.constraints, "obs_dim": obs_dim,
-            "act_dim": act_dim, "hidden": list(cfg.hidden), "network": cfg.network, "env_kwargs": cfg.env_kwargs, "train_config": json.loads(cfg.to_json()),
+            "act_dim": act_dim, "hidden": list(cfg.hidden), "env_kwargs": cfg.env_kwargs, "train_config": json.loads(cfg.to_json()),
             "env_steps": env_steps, "updates": updates, "wall_s": round(wall_s, 1), "eval": eval_result,
             "train_command": command}
 
