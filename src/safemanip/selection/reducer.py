@@ -20,7 +20,9 @@ the table** (x = 0.70, 0.45, 0.20, -0.05 m; y = +0.37 m, then y = +0.22 m), at l
 straight path the box takes to the goal and clear of the stack, i.e. where training scenes had
 their far-away clutter. A dummy's constraint is ``any_contact`` (nothing to avoid) for an
 ``all`` policy and ``no_contact`` for a ``conservative`` one (the only type it knows). Dummies are
-never judged: the judge only sees the real scene.
+never judged: the judge only sees the real scene. With ``empty_slots`` (object-set policies, whose
+selector may hand over any number of objects up to k) the missing slots are all zeros instead: an
+all-zero one-hot marks a slot absent, and the set network leaves it out of its pooling.
 """
 
 from __future__ import annotations
