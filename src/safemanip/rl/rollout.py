@@ -32,14 +32,14 @@ def run_episode(env, act, seed: int) -> EpisodeRecord:
 def _worker(args) -> list[dict]:
     policy_arrays, env_kwargs, seeds = args
     from safemanip.rl.envs import make_env
-    from safemanip.rl.numpy_actor import NumpyActor
+    from safemanip.rl.numpy_actor import make_numpy_actor
 
-    actor = NumpyActor(policy_arrays)
+    actor = make_numpy_actor(policy_arrays)
     env = make_env(env_kwargs)
     return [asdict(run_episode(env, actor, s)) for s in seeds]
 
 
-def evaluate_actor(actor_arrays: list[np.ndarray], env_kwargs: dict, seeds: list[int], workers: int = 1) -> list[dict]:
+def evaluate_actor(actor_arrays: list[np.ndarray] | dict[str, np.ndarray], env_kwargs: dict, seeds: list[int], workers: int = 1) -> list[dict]:
     """Deterministic rollouts of the actor on the given seeds; records in seed order."""
     if workers <= 1:
         return _worker((actor_arrays, env_kwargs, seeds))
