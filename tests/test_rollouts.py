@@ -163,3 +163,20 @@ def test_train_runs_a_set_network_with_selection_aware_dynamic_k_and_records_it(
     assert isinstance(actor, NumpySetActor) and meta["network"] == "set" and meta["k"] == 3
     assert meta["train_config"]["scene_objects"] == 5 and meta["env_kwargs"]["n_objects"] == 3  # eval sees a k=3 policy
 
+
+def test_the_selection_aware_env_comes_from_the_closed_registry_only():
+    """``slide-out-selected`` is a fixed registry name whose factory only the selection layer hands in; a config
+    cannot name it (nor a module), and the registry takes no other provided names."""
+    from safemanip.rl import envs
+    from safemanip.rl.config import ConfigError
+    from safemanip.selection.training_env import SelectedSlotsEnv
+
+    built = envs.env_builder(TrainConfig(k=2, scene_objects=3).rollout_env_kwargs)
+    assert built.factory is SelectedSlotsEnv and built.kwargs["k"] == 2 and built.kwargs["n_objects"] == 3
+    for name in (envs.SELECTED_ENV, "safemanip.selection.training_env:SelectedSlotsEnv"):
+        with pytest.raises(ConfigError, match="registered envs"):
+            TrainConfig.from_dict({"env": name})
+    with pytest.raises(ValueError, match="not a provided env"):
+        envs.register_env("my-env", SelectedSlotsEnv)
+    with pytest.raises(ValueError, match="unknown env"):
+        envs.make_env({"env": "selection:SelectedSlotsEnv"})
