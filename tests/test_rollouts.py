@@ -180,3 +180,15 @@ def test_the_selection_aware_env_comes_from_the_closed_registry_only():
         envs.register_env("my-env", SelectedSlotsEnv)
     with pytest.raises(ValueError, match="unknown env"):
         envs.make_env({"env": "selection:SelectedSlotsEnv"})
+
+
+def test_evaluation_workers_build_the_selection_aware_env_resolved_in_the_parent():
+    """Spawned evaluation workers register nothing: they get the resolved factory and give the in-process result."""
+    from safemanip.rl.networks import Actor, actor_arrays
+    from safemanip.rl.rollout import evaluate_actor
+
+    cfg = TrainConfig(k=2, scene_objects=4, max_episode_steps=10)
+    arrays = actor_arrays(Actor(observation_dim(2), 3, (16, 16)))
+    seeds = [5, 6]
+    assert evaluate_actor(arrays, cfg.rollout_env_kwargs, seeds, workers=2) == \
+        evaluate_actor(arrays, cfg.rollout_env_kwargs, seeds, workers=1)

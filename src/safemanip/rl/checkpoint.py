@@ -261,7 +261,6 @@ def load_policy(path: str | Path):
     return NumpyActor(arrays), meta
 
 
-
 def _checked_set_arrays(path: Path, tensors: dict[str, np.ndarray], meta: dict) -> dict[str, np.ndarray]:
     """The object-set actor's arrays (``set.net.{encoder,head}.{weights,biases}.{i}``, one head: (1, in, out) and
     (1, 1, out)), checked as ``load_policy`` checks a flat MLP: the keys, shapes that chain from a slot's
@@ -294,6 +293,7 @@ def _checked_set_arrays(path: Path, tensors: dict[str, np.ndarray], meta: dict) 
     if wrong:
         raise PolicyFileError(f"{path}: the metadata does not match the weights: {', '.join(wrong)}")
     return {k[len("set."):]: v for k, v in tensors.items()}
+
 
 EMBODIMENTS = ("panda", "hand")
 
