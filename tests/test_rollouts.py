@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from safemanip.env.observation import ROBOT_DIM, SLOT_DIM, observation_dim
-from safemanip.rl.collector import CHUNK, TRANSITION_KEYS, LocalPool, RayPool, RolloutWorker, env_factory
+from safemanip.rl.collector import CHUNK, TRANSITION_KEYS, LocalPool, RayPool, RolloutWorker
 from safemanip.rl.config import TrainConfig
+from safemanip.rl.envs import make_env
 import safemanip.selection.training_env  # noqa: F401  registers the selection-aware env (as safemanip train does)
 
 ENV = {"n_objects": 2, "constraints": "conservative", "max_episode_steps": 40, "slot_order": "nearest"}
@@ -101,7 +102,7 @@ def test_selection_aware_env_shows_k_selected_slots_and_judges_all_objects():
     from safemanip.selection.view import EnvViewBuilder
 
     cfg = TrainConfig(k=2, scene_objects=5, max_episode_steps=30)
-    env = env_factory(cfg.rollout_env_kwargs)
+    env = make_env(cfg.rollout_env_kwargs)
     obs, info = env.reset(seed=11)
     assert obs.shape == (observation_dim(2),) and len(info["names"]) == 5
     # the same pipeline by hand, as evaluation/episode.py runs it at deployment
@@ -124,7 +125,7 @@ def test_selection_aware_env_shows_k_selected_slots_and_judges_all_objects():
 
 def test_dynamic_radius_training_env_leaves_absent_slots_empty():
     cfg = TrainConfig(k=4, scene_objects=6, network="set", selector="dynamic-radius", selection_radius=0.3)
-    env = env_factory(cfg.rollout_env_kwargs)
+    env = make_env(cfg.rollout_env_kwargs)
     obs, _ = env.reset(seed=2)
     slots = obs[ROBOT_DIM:].reshape(4, SLOT_DIM)
     present = slots[:, 6:9].sum(1) > 0.5

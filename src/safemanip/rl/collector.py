@@ -24,7 +24,6 @@ import time
 import numpy as np
 
 from safemanip.rl.envs import EnvBuilder, env_builder
-from safemanip.rl.envs import make_env as env_factory  # noqa: F401  (the closed env registry; tests build envs with it)
 
 CHUNK = 256  # transitions per message: large enough to amortise IPC, small enough to stay fresh
 TRANSITION_KEYS = ("obs", "act", "next_obs", "l", "g", "next_l", "next_g", "terminated")  # = buffer.FIELDS
@@ -45,8 +44,8 @@ class RolloutWorker:
         build = env if isinstance(env, EnvBuilder) else env_builder(env)
         self.envs = [build() for _ in range(n_envs)]
         self.obs, self.infos = [], []
-        for i, env in enumerate(self.envs):
-            o, info = env.reset(seed=int(seed * 1000 + worker * 100 + i))
+        for i, e in enumerate(self.envs):
+            o, info = e.reset(seed=int(seed * 1000 + worker * 100 + i))
             self.obs.append(o)
             self.infos.append(info)
         self.actor = None
