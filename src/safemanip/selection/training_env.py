@@ -9,10 +9,11 @@ first, exactly as ``evaluation/episode.py`` does at test time. Constraint one-ho
 ``no_contact`` everywhere, as in the reducer.
 
 Why it lives here: ``selection`` sits above ``env`` and beside ``rl``; ``rl`` imports nothing from
-``selection``, and this module takes only the registry's ``register_env`` from ``rl``. The env registry (``rl/envs.py``) fixes the name ``slide-out-selected`` (``SELECTED_ENV``), which
+``selection``, and this module takes only the registry's ``register_env`` from ``rl``. The env
+registry (``rl/envs.py``) fixes the name ``slide-out-selected`` (``SELECTED_ENV``), which
 ``TrainConfig.rollout_env_kwargs`` chooses for selection-aware training; importing this module hands
-the registry its factory (``register_env``). ``safemanip train`` imports it; so must any other caller
-of ``rl.train.train`` that trains selection-aware. No name read from a config is ever imported.
+the registry its factory. ``safemanip train`` imports it; so must any other caller of
+``rl.train.train`` that trains selection-aware. No name read from a config is ever imported.
 """
 
 from __future__ import annotations
