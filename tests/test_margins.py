@@ -173,3 +173,12 @@ def test_margins_return_python_floats():
               M.margin_top_box((0, 0), (0, 0), 1.0, 0.1, 0.5), M.margin_no_contact(0.1, 0.01),
               M.margin_soft_contact(0.1, 0.1, 0.01, 1.0), M.margin_in_workspace((0, 0), (0.8, 0.45), 0.03)]
     assert all(type(v) is float for v in values)
+
+
+def test_at_rest_margin_is_a_distance_and_positive_only_below_v_place():
+    from safemanip.env.margins import margin_at_rest
+
+    assert margin_at_rest(0.0, 0.05, 0.1) == pytest.approx(0.005)
+    assert margin_at_rest(0.05, 0.05, 0.1) == pytest.approx(0.0)
+    assert margin_at_rest(1.45, 0.05, 0.1) == pytest.approx(-0.14)  # metres: comparable with l1 and l2
+    assert (margin_at_rest(0.049, 0.05, 0.1) > 0) and (margin_at_rest(0.051, 0.05, 0.1) < 0)

@@ -30,6 +30,8 @@ class Thresholds:
     """d4: collision threshold (paper Table V: 0.01 m)."""
     relative_speed: float = 1.0
     """Soft-contact relative velocity threshold (paper Table V: 1.0 m/s)."""
+    place_horizon: float = 0.1
+    """l3's scale [s]: speed margins become distances travelled in this time (see ``margin_at_rest``)."""
     place_speed: float = 0.05
     """v_place: the box counts as placed only when slower than this [m/s]. 5 cm/s is 3 % of the Panda's
     1.7 m/s and a Panda stops from it in 4 ms at 13 m/s^2, so the box is at rest in the goal for any
@@ -61,9 +63,15 @@ def margin_top_box(top_xy, top_xy_start, top_up_z: float, max_displacement: floa
     return min(displaced, float(top_up_z) - min_up)
 
 
-def margin_at_rest(speed: float, place_speed: float) -> float:
-    """l3 = v_place - ||v_bot||: the box is placed, not passing through (m/s, like g_soft's speed term)."""
-    return float(place_speed - speed)
+def margin_at_rest(speed: float, place_speed: float, horizon: float) -> float:
+    """l3 = horizon * (v_place - ||v_bot||): the box is placed, not passing through.
+
+    In metres, like l1 and l2: the distance the box would travel in ``horizon`` seconds beyond what a
+    placed box may. In m/s the term dwarfed the distance to the goal while the box moved fast, so
+    l = min(l1, l2, l3) ranked a fast pull (which the tablecloth trick needs) as far from success as it
+    could be; in metres it matters only close to the goal. Its sign, and so the target set, is the same.
+    """
+    return float(horizon * (place_speed - speed))
 
 
 def worst_top_box(top_xy_path: np.ndarray, top_xy_start, top_up_z_path: np.ndarray, max_displacement: float,

@@ -322,7 +322,8 @@ class SlideOutEnv(gym.Env):
             "g_dyn": M.margin_top_box(top, self._top_start, float(gather.xmat[gather.top_up_z]),
                                       th.top_box_displacement, th.top_box_min_up),
             "g_oob": M.margin_in_workspace(bottom, geo.table_half_extents, geo.workspace_inset),
-            "l3": M.margin_at_rest(math.sqrt(v[3] * v[3] + v[4] * v[4] + v[5] * v[5]), th.place_speed),
+            "l3": M.margin_at_rest(math.sqrt(v[3] * v[3] + v[4] * v[4] + v[5] * v[5]), th.place_speed,
+                                   th.place_horizon),
         }
         history = None
         if substeps:
