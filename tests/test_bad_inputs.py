@@ -218,6 +218,20 @@ TRAIN = ["train", "--no-progress"]
     (["--gamma", "1"], "gamma must be in (0, 1)"),
     (["--gamma", "0.9", "--gamma-start", "0.95"], "gamma_start must be in (0, gamma]"),
     (["--algorithm", "ppo"], "argument --algorithm"),
+    # the learner's flags (issue 10)
+    (["--workers", "0"], "argument --workers"),
+    (["--workers", "1000"], "argument --workers"),
+    (["--precision", "fp8"], "argument --precision"),
+    (["--device", "tpu"], "argument --device"),
+    (["--network", "transformer"], "argument --network"),
+    (["--backend", "slurm"], "argument --backend"),
+    (["--selector", "privileged"], "argument --selector"),
+    (["--selection-radius", "0"], "argument --selection-radius"),
+    (["--selection-radius", "nan"], "argument --selection-radius"),
+    (["--scene-objects", "99"], "argument --scene-objects"),
+    (["--k", "4", "--scene-objects", "2"], "scene_objects must be in k..8"),
+    (["--selector", "dynamic-radius"], "use network 'set'"),
+    (["--address", "10.0.0.1:6379"], "address only applies to backend 'ray'"),
 ])
 def test_train_refuses_bad_flags(capsys, tmp_path, extra, message):
     assert_refused(capsys, TRAIN + ["--out", tmp_path / "run"] + extra, message)
@@ -240,6 +254,17 @@ EVIL = {"env_factory": "subprocess:getoutput", "extra_env_kwargs": {"cmd": "touc
     ({"seed": True}, "seed must be an int"),
     ({"eval_episodes": 0}, "eval_episodes must be 1..100000"),
     ({"n_collectors": 10**6}, "n_collectors must be at most"),
+    # the selection-aware env is the registry's, never a module named by a config
+    ({"env": "selection:SelectedSlotsEnv"}, "env must be one of the registered envs"),
+    ({"env": "safemanip.selection.training_env:SelectedSlotsEnv"}, "env must be one of the registered envs"),
+    ({"env": "slide-out-selected"}, "env must be one of the registered envs"),
+    ({"env_factory": "safemanip.selection.training_env:SelectedSlotsEnv", "scene_objects": 4},
+     "env_factory 'safemanip.selection.training_env:SelectedSlotsEnv' is not accepted"),
+    ({"env": "toy-double-integrator", "scene_objects": 4}, "scene_objects (selection-aware training) works on"),
+    ({"device": "cuda:x"}, "device must be one of"),
+    ({"set_embed": 10**6}, "set_embed must be at most"),
+    ({"selection_radius": -1.0}, "selection_radius in (0, 10.0] m"),
+    ({"backend": "ray", "address": "a b"}, "address must be a Ray cluster address"),
 ])
 def test_train_refuses_bad_configs(capsys, tmp_path, config, message):
     marker = tmp_path / "pwned"

@@ -72,3 +72,11 @@ def test_the_checker_sees_an_upward_import(tmp_path):
     assert imports_of(bad) == [(2, "safemanip.evaluation.harness"), (2, "safemanip.evaluation.harness.evaluate")]
     assert layer_of("safemanip.evaluation.harness") > layer_of("safemanip.rl.train")
     assert layer_of("safemanip.toy.system") < layer_of("safemanip.rl.envs") < layer_of("safemanip.toy.oracle")
+
+
+def test_rl_imports_nothing_from_selection():
+    """``rl`` and ``selection`` share a layer, but only one way: the selection-aware training env registers its
+    factory with ``rl.envs`` (``register_env``); ``rl`` never imports ``selection``, not even in a function."""
+    found = [f"{path.relative_to(ROOT)}:{line} imports {target}" for path in sorted((ROOT / "rl").rglob("*.py"))
+             for line, target in imports_of(path) if target.startswith("safemanip.selection")]
+    assert not found, "\n".join(found)

@@ -96,10 +96,11 @@ def _tiny_config(tmp_path: Path, **extra) -> Path:
 
 
 @pytest.mark.slow
-def test_kill_9_of_train_leaves_no_process(tmp_path):
-    proc = start(["train", "--config", _tiny_config(tmp_path), "--out", tmp_path / "run", "--no-progress"],
+@pytest.mark.parametrize("extra", [{}, {"scene_objects": 3, "n_collectors": 2}], ids=["plain", "selection-aware-2-workers"])
+def test_kill_9_of_train_leaves_no_process(tmp_path, extra):
+    proc = start(["train", "--config", _tiny_config(tmp_path, **extra), "--out", tmp_path / "run", "--no-progress"],
                  tmp_path, "train.log")
-    workers = wait_for_workers(proc, 1)
+    workers = wait_for_workers(proc, extra.get("n_collectors", 1))
     kill_and_check_orphans(proc, workers)
 
 

@@ -124,7 +124,7 @@ def test_grid_labels_hold_in_the_continuous_env(grid, states):
 def test_shipped_model_is_small_and_complete():
     assert MODEL.stat().st_size < 1_000_000
     actor, critic, meta = toy.load_model(MODEL)
-    assert len(critic.heads) == 2 and meta["train_config"]["algorithm"] == "rarl"
+    assert critic.q.heads == 2 and meta["train_config"]["algorithm"] == "rarl"
     assert meta["train_config"]["env_factory"] == "safemanip.rl.toy:ToyReachAvoidEnv" and meta["command"]
 
 

@@ -30,11 +30,28 @@ FLAGS = {
     "--eval-episodes": ("eval_episodes", int_in(1, 100_000), "episodes per evaluation"),
     "--checkpoint-every-s": ("checkpoint_every_s", float_in(0, 86_400, lo_open=True), "seconds between checkpoints"),
     "--max-episode-steps": ("max_episode_steps", int_in(1, 100_000), "episode length in control steps"),
+    # learner speed, network, selection-aware training and rollout backend (issue 10)
+    "--device": ("device", None, "learner device: auto (CUDA if PyTorch sees a GPU), cpu or cuda (default auto)"),
+    "--precision": ("precision", None, "forward passes in bf16 autocast or fp32; auto: bf16 where it is native "
+                                       "and measured faster at start-up (default auto)"),
+    "--network": ("network", None, "flat MLP (the paper's, fixed k) or object-set network (any number of objects)"),
+    "--scene-objects": ("scene_objects", int_in(0, 8), "selection-aware training: N objects per scene (N >= k); "
+                                                       "the selector picks the policy's k"),
+    "--selector": ("selector", None, "object selector for selection-aware training (dynamic-radius needs "
+                                     "--network set)"),
+    "--selection-radius": ("selection_radius", float_in(0, 10, lo_open=True), "dynamic-radius: radius around the "
+                                                                              "held box [m] (default 0.35)"),
+    "--backend": ("backend", None, "rollout workers as local processes or Ray actors (default local)"),
+    "--address": ("address", None, "Ray cluster address HOST:PORT for --backend ray (default: a local Ray instance)"),
+    "--workers": ("n_collectors", int_in(1, 64), "rollout workers: processes or Ray actors (default 1)"),
 }
-CHOICES = {"--algorithm": ["rarl", "vanilla"], "--constraints": ["conservative", "all"], "--embodiment": ["panda", "hand"]}
+CHOICES = {"--algorithm": ["rarl", "vanilla"], "--constraints": ["conservative", "all"], "--embodiment": ["panda", "hand"],
+           "--device": ["auto", "cpu", "cuda"], "--precision": ["auto", "bf16", "fp32"], "--network": ["mlp", "set"],
+           "--selector": ["dynamic-knn", "dynamic-radius"], "--backend": ["local", "ray"]}
 
 
 def _cmd_train(args) -> int:
+    import safemanip.selection.training_env  # noqa: F401  registers the selection-aware training env
     from safemanip.rl.config import TrainConfig
     from safemanip.rl.train import train
     from safemanip.util.files import check_output_dir

@@ -87,14 +87,16 @@ def run_episode(env, actor: Callable[[np.ndarray], np.ndarray], reducer: Reducer
     if len(assigned) != n:
         raise RuntimeError(f"constraint selector {constraint_selector.name!r} gave {len(assigned)} types for {n} objects")
     want = min(k, n)
+    up_to = getattr(object_selector, "variable_k", False)  # dynamic k: any number of objects up to k
     changes: list[tuple[int, tuple[int, ...]]] = []
     ids: list[int] = []
     t = 0
     while True:
         ids = [int(i) for i in object_selector.select(view, k)] if want else []
-        if len(ids) != want or len(set(ids)) != want or any(not 0 <= i < n for i in ids):
-            raise RuntimeError(f"object selector {object_selector.name!r} returned {ids}: expected {want} distinct "
-                               f"ids of a {n}-object scene")
+        if (len(ids) > want if up_to else len(ids) != want) or len(set(ids)) != len(ids) \
+                or any(not 0 <= i < n for i in ids):
+            raise RuntimeError(f"object selector {object_selector.name!r} returned {ids}: expected "
+                               f"{'at most ' if up_to else ''}{want} distinct ids of a {n}-object scene")
         key = tuple(sorted(ids))
         if not changes or changes[-1][1] != key:
             changes.append((t, key))

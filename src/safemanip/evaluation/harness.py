@@ -40,7 +40,7 @@ from safemanip.util.procs import stop_on_signals
 JUDGES = {"ground-truth": "ground_truth", "conservative": "conservative"}
 SEED_STRIDE = 100_000
 MAX_EPISODE_STEPS = 100_000
-METRIC_SELECTORS = ("static-knn", "dynamic-knn", "privileged", "dynamic-vlm")
+METRIC_SELECTORS = ("static-knn", "dynamic-knn", "dynamic-radius", "privileged", "dynamic-vlm")
 
 
 class EvalConfigError(ValueError):
@@ -118,8 +118,8 @@ def _policy_problems(req: EvalRequest, problems: list[str]):
     if meta["constraints"] not in ("conservative", "all"):
         problems.append(f"--policy {req.policy}: unknown constraint set {meta['constraints']!r} in its metadata")
         return None, None
-    obs_dim = actor.weights[0][0].shape[0]
-    if obs_dim != observation_dim(int(meta["k"])):
+    obs_dim = actor.obs_dim  # None: a set network takes any number of slots
+    if obs_dim is not None and obs_dim != observation_dim(int(meta["k"])):
         problems.append(f"--policy {req.policy}: input size {obs_dim} does not match k={meta['k']} "
                         f"(expected {observation_dim(int(meta['k']))})")
         return None, None
@@ -127,8 +127,7 @@ def _policy_problems(req: EvalRequest, problems: list[str]):
     if mismatch:
         problems.append(mismatch)
         return None, None
-    arrays = [a for w, b in actor.weights for a in (w.T.copy(), b)]
-    return arrays, meta
+    return actor.arrays(), meta
 
 
 def prepare(req: EvalRequest) -> Prepared:
@@ -227,9 +226,12 @@ def prepare(req: EvalRequest) -> Prepared:
             else:
                 problems.append(f"the policy has k={k} slots but the scene has N={n} objects: choose an object "
                                 f"selector with --selector ({', '.join(METRIC_SELECTORS)})")
-        if n < k and not req.pad:
+        if n < k and not req.pad and meta.get("network") != "set":  # a set network masks the empty slots
             problems.append(f"the policy needs k={k} objects but the scene has N={n}: use --n-objects >= {k}, a "
                             f"policy with k <= {n}, or --pad to fill the empty slots with far-away dummy objects")
+        if selector == "dynamic-radius" and meta.get("network") != "set" and not req.pad:
+            problems.append("--selector dynamic-radius hands the policy a varying number of objects: use a policy "
+                            "trained with network 'set', or --pad to fill the rest with far-away dummies")
         if selector == "full" and n > k:
             problems.append(f"--selector full shows every object, but N={n} > k={k}: pick one of "
                             f"{', '.join(METRIC_SELECTORS)}")

@@ -24,7 +24,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from safemanip.rl.numpy_actor import NumpyActor  # no torch import: workers start fast
+from safemanip.rl.numpy_actor import make_numpy_actor  # no torch import: workers start fast
 from safemanip.util.procs import Interrupted, die_with_parent
 from safemanip.evaluation.registry import SelectorOptions
 
@@ -37,8 +37,9 @@ _ONE_THREAD = {v: "1" for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_
 class EvalSpec:
     """Everything a worker needs to run episodes; plain data (pickled to processes / Ray tasks)."""
 
-    actor_arrays: list[np.ndarray]
-    """Actor weights and biases, layer by layer (W as out x in), as saved in a policy file."""
+    actor_arrays: list[np.ndarray] | dict[str, np.ndarray]
+    """Actor weights as saved in a policy file: a list layer by layer (W as out x in) for the flat MLP, a
+    dict by parameter name for the object-set actor (``rl/numpy_actor.py``)."""
     k: int
     policy_constraints: str
     env_kwargs: dict
@@ -71,8 +72,8 @@ def run_chunk(spec: EvalSpec, seeds: list[int]) -> list[dict]:
     with one_blas_thread():
         env = SlideOutEnv(**spec.env_kwargs)
         try:
-            actor = NumpyActor(spec.actor_arrays)
-            reducer = Reducer(spec.k, spec.policy_constraints, pad=spec.pad)
+            actor = make_numpy_actor(spec.actor_arrays)
+            reducer = Reducer(spec.k, spec.policy_constraints, pad=spec.pad, empty_slots=actor.network == "set")
             osel = make_object_selector(spec.selector, spec.options)
             csel = make_constraint_selector(spec.constraints, spec.options)
             builder = EnvViewBuilder(camera=spec.camera)

@@ -11,8 +11,9 @@ from dataclasses import dataclass
 from typing import Callable
 
 from safemanip.selection.base import ConstraintSelector, ObjectSelector
-from safemanip.selection.selectors import (DEFAULT_INTERVAL, ConservativeConstraints, DynamicKNN, FullSelector,
-                                           GroundTruthConstraints, PrivilegedSelector, StaticKNN)
+from safemanip.selection.selectors import (DEFAULT_INTERVAL, DEFAULT_RADIUS, ConservativeConstraints, DynamicKNN,
+                                           DynamicRadius, FullSelector, GroundTruthConstraints, PrivilegedSelector,
+                                           StaticKNN)
 
 
 @dataclass(frozen=True)
@@ -20,6 +21,8 @@ class SelectorOptions:
     """Everything a selector factory may need; plain data so it can travel to worker processes."""
 
     interval: int = DEFAULT_INTERVAL
+    radius: float = DEFAULT_RADIUS
+    """dynamic-radius: pick the objects within this horizontal distance of the box's centre [m]."""
     vlm_backend: str = "semantic"
     vlm_model: str | None = None
     vlm_base_url: str | None = None
@@ -65,6 +68,7 @@ def _vlm_constraints(opts: SelectorOptions) -> ConstraintSelector:
 OBJECT_SELECTORS: dict[str, Callable[[SelectorOptions], ObjectSelector]] = {
     "static-knn": lambda o: StaticKNN(),
     "dynamic-knn": lambda o: DynamicKNN(o.interval),
+    "dynamic-radius": lambda o: DynamicRadius(o.interval, o.radius),
     "privileged": lambda o: PrivilegedSelector(o.interval),
     "full": lambda o: FullSelector(),
     "dynamic-vlm": _dynamic_vlm,

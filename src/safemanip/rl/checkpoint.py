@@ -110,13 +110,19 @@ def _fsync_dir(path: Path) -> None:
 
 
 # ------------------------------------------------------------------------------------------ policies
-def save_policy(path: Path, actor_arrays: list[np.ndarray], meta: dict) -> Path:
-    """One self-describing file: actor weights plus JSON metadata in the safetensors header."""
+def save_policy(path: Path, actor_arrays: list[np.ndarray] | dict[str, np.ndarray], meta: dict) -> Path:
+    """One self-describing file: actor weights plus JSON metadata in the safetensors header. The header's
+    ``network`` ('mlp' or 'set') says which actor class the weights belong to."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tensors = {f"layer{i // 2}.{'weight' if i % 2 == 0 else 'bias'}": a for i, a in enumerate(actor_arrays)}
+    if isinstance(actor_arrays, dict):  # set network: parameters by name
+        network, tensors = "set", {f"set.{k}": np.ascontiguousarray(a) for k, a in actor_arrays.items()}
+    else:
+        network = "mlp"
+        tensors = {f"layer{i // 2}.{'weight' if i % 2 == 0 else 'bias'}": a for i, a in enumerate(actor_arrays)}
     with atomic_path(path) as tmp:
-        save_numpy(tensors, tmp, metadata={"format": POLICY_FORMAT, "meta": json.dumps(meta)})
+        save_numpy(tensors, tmp, metadata={"format": POLICY_FORMAT, "network": network,
+                                           "meta": json.dumps({**meta, "network": network})})
     return path
 
 
@@ -202,7 +208,7 @@ def load_policy(path: str | Path):
     The file is checked before use: a safetensors structure (``check_safetensors``), the policy format
     tag, JSON metadata, the layer keys, shapes that chain (and match ``obs_dim``/``act_dim``/``hidden`` of
     the metadata when given) and finite weights; any problem is a PolicyFileError saying what is wrong."""
-    from safemanip.rl.numpy_actor import NumpyActor
+    from safemanip.rl.numpy_actor import NumpyActor, NumpySetActor
 
     path = resolve_policy(path)
     if path.is_dir():
@@ -225,6 +231,11 @@ def load_policy(path: str | Path):
     if not isinstance(meta, dict):
         raise PolicyFileError(f"{path}: the policy's metadata must be a JSON object")
     tensors = load_numpy(str(path))
+    network = header.get("network", "mlp")  # files from before the set network have none: a flat MLP
+    if network == "set":
+        return NumpySetActor(_checked_set_arrays(path, tensors, meta)), meta
+    if network != "mlp":
+        raise PolicyFileError(f"{path}: unknown network {network!r} in the header (expected 'mlp' or 'set')")
     n_layers = len(tensors) // 2
     expected = {f"layer{i}.{w}" for i in range(n_layers) for w in ("weight", "bias")}
     if n_layers < 1 or set(tensors) != expected:
@@ -248,6 +259,40 @@ def load_policy(path: str | Path):
     if wrong:
         raise PolicyFileError(f"{path}: the metadata does not match the weights: {', '.join(wrong)}")
     return NumpyActor(arrays), meta
+
+
+def _checked_set_arrays(path: Path, tensors: dict[str, np.ndarray], meta: dict) -> dict[str, np.ndarray]:
+    """The object-set actor's arrays (``set.net.{encoder,head}.{weights,biases}.{i}``, one head: (1, in, out) and
+    (1, 1, out)), checked as ``load_policy`` checks a flat MLP: the keys, shapes that chain from a slot's
+    features to the action, finite float weights, and ``act_dim``/``hidden`` of the metadata."""
+    from safemanip.rl.numpy_actor import ROBOT_DIM, SLOT_DIM
+
+    counts = {part: sum(1 for k in tensors if k.startswith(f"set.net.{part}.weights.")) for part in ("encoder", "head")}
+    expected = {f"set.net.{part}.{kind}.{i}" for part, n in counts.items() for i in range(n)
+                for kind in ("weights", "biases")}
+    if min(counts.values()) < 1 or set(tensors) != expected:
+        raise PolicyFileError(f"{path}: expected the set actor's tensors set.net.encoder.weights.0, ... "
+                              f"set.net.head.biases.{{n}}, got {sorted(tensors)[:8]}")
+    prev = SLOT_DIM + 3  # a slot's features: (pos, vel, one-hot) and the position relative to the held box
+    for part in ("encoder", "head"):
+        for i in range(counts[part]):
+            w, b = tensors[f"set.net.{part}.weights.{i}"], tensors[f"set.net.{part}.biases.{i}"]
+            if w.ndim != 3 or w.shape[:2] != (1, prev) or b.shape != (1, 1, w.shape[2]):
+                raise PolicyFileError(f"{path}: set actor {part} layer {i} has shapes weight {w.shape} / bias "
+                                      f"{b.shape} that do not chain")
+            if w.dtype.kind != "f" or not (np.isfinite(w).all() and np.isfinite(b).all()):
+                raise PolicyFileError(f"{path}: set actor {part} layer {i} holds non-finite (NaN or infinite) or "
+                                      "non-float weights; the policy cannot be used")
+            prev = w.shape[2]
+        if part == "encoder":
+            prev = ROBOT_DIM + 2 * prev  # the head reads the robot state and the mean+max pooling
+    n_head = counts["head"]
+    dims = {"act_dim": prev, "hidden": [tensors[f"set.net.head.weights.{i}"].shape[2] for i in range(n_head - 1)]}
+    wrong = [f"{key} {meta[key]} (the weights say {value})" for key, value in dims.items()
+             if key in meta and meta[key] != value]
+    if wrong:
+        raise PolicyFileError(f"{path}: the metadata does not match the weights: {', '.join(wrong)}")
+    return {k[len("set."):]: v for k, v in tensors.items()}
 
 
 EMBODIMENTS = ("panda", "hand")

@@ -7,7 +7,7 @@ import math
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
-from safemanip.rl.envs import DEFAULT_ENV, ENVS, LEGACY_FACTORIES, check_env
+from safemanip.rl.envs import DEFAULT_ENV, ENVS, LEGACY_FACTORIES, SELECTED_ENV, check_env
 from safemanip.scene.config import MAX_OBJECTS
 
 
@@ -78,6 +78,31 @@ class TrainConfig:
     envs_per_collector: int = 4
     torch_threads: int = 1
     """Threads for the learner's PyTorch; the collectors use the other core(s)."""
+    # -- learner speed, network, selection-aware training, rollout backend (issue 10)
+    device: str = "auto"
+    """Learner device: 'auto' (CUDA if PyTorch sees a GPU, else CPU), 'cpu' or 'cuda'. Rollouts stay on CPUs."""
+    precision: str = "auto"
+    """Forward passes in 'bf16' (autocast; fp32 master weights, losses and targets) or 'fp32'; 'auto' takes
+    bf16 only where it is native and measured faster at start-up (rl/precision.py)."""
+    network: str = "mlp"
+    """'mlp': the paper's flat MLPs over a fixed k; 'set': a shared per-object encoder pooled over the slots
+    (order-invariant, absent slots masked), one network for any number of objects."""
+    set_embed: int = 128
+    """Width of the set network's per-object encoder (two ReLU layers)."""
+    scene_objects: int | None = None
+    """Selection-aware training: objects in each training scene (N >= k); the object selector picks the
+    policy's k slots every ``selection_interval`` steps and the judge covers all N. None: N = k."""
+    selector: str = "dynamic-knn"
+    """Object selector for selection-aware training: 'dynamic-knn' (k nearest) or 'dynamic-radius' (every
+    object within ``selection_radius``, at most k; needs network='set')."""
+    selection_radius: float = 0.35
+    """dynamic-radius: horizontal distance from the held box's centre [m] within which objects are picked."""
+    selection_interval: int = 4
+    """Control steps between re-selections during selection-aware training (the paper's 4)."""
+    backend: str = "local"
+    """Rollout workers as local processes ('local') or Ray actors ('ray'); the learner stays in this process."""
+    address: str | None = None
+    """Ray cluster address (HOST:PORT or 'auto'); None starts a local Ray instance. Only with backend='ray'."""
     # -- evaluation, logging, checkpoints
     eval_every_s: float = 120.0
     eval_episodes: int = 50
@@ -147,8 +172,53 @@ class TrainConfig:
         if self.env == DEFAULT_ENV and self.extra_env_kwargs:
             problems.append("extra_env_kwargs apply to non-default envs only (the slide-out env takes its settings "
                             "from k, constraints, near_path_fraction, max_episode_steps, slot_order and embodiment)")
+        problems += self._learner_problems()
         if problems:
             raise ConfigError("invalid training config:\n  - " + "\n  - ".join(problems))
+
+    def _learner_problems(self) -> list[str]:
+        """Checks of the issue-10 fields (device, precision, network, selection-aware training, backend)."""
+        problems = []
+        for name, allowed in (("device", ("auto", "cpu", "cuda")), ("precision", ("auto", "bf16", "fp32")),
+                              ("network", ("mlp", "set")), ("selector", ("dynamic-knn", "dynamic-radius")),
+                              ("backend", ("local", "ray"))):
+            value = getattr(self, name)
+            if value not in allowed and not (name == "device" and str(value).startswith("cuda:")
+                                             and value[len("cuda:"):].isdigit()):
+                problems.append(f"{name} must be one of {allowed}, got {value!r}")
+        if self.set_embed < 1 or self.selection_interval < 1 or not 0 < self.selection_radius <= MAX_RADIUS:
+            problems.append(f"set_embed >= 1, selection_interval >= 1 and selection_radius in (0, {MAX_RADIUS}] m "
+                            f"are required")
+        if self.scene_objects is not None:
+            if not self.k <= self.scene_objects <= MAX_OBJECTS:
+                problems.append(f"scene_objects must be in k..{MAX_OBJECTS} ({self.k}..{MAX_OBJECTS}), "
+                                f"got {self.scene_objects}")
+            if self.env != DEFAULT_ENV:
+                problems.append(f"scene_objects (selection-aware training) works on the {DEFAULT_ENV!r} env, "
+                                f"not {self.env!r}")
+        if self.selector == "dynamic-radius" and self.network != "set":
+            problems.append("selector 'dynamic-radius' hands the policy a varying number of objects: use network 'set'")
+        if self.address is not None:
+            if self.backend != "ray":
+                problems.append("address only applies to backend 'ray'")
+            elif not self.address.strip() or len(self.address) > 255 or any(c.isspace() for c in self.address):
+                problems.append(f"address must be a Ray cluster address (HOST:PORT, or 'auto'), got {self.address!r}")
+        return problems
+
+    @property
+    def selection_aware(self) -> bool:
+        """Training scenes hold more objects than the policy's slots, or the slots vary (dynamic-radius)."""
+        return self.env == DEFAULT_ENV and (self.scene_objects is not None or self.selector == "dynamic-radius")
+
+    @property
+    def rollout_env_kwargs(self) -> dict:
+        """The env the rollout workers and the periodic evaluation run: ``env_kwargs``, or with selection-aware
+        training the registry's ``slide-out-selected`` env: the full N-object scene seen through the selector
+        (its factory is ``selection.training_env.SelectedSlotsEnv``, registered by that layer)."""
+        if not self.selection_aware:
+            return self.env_kwargs
+        return {**self.env_kwargs, "env": SELECTED_ENV, "n_objects": self.scene_objects or self.k, "k": self.k,
+                "selector": self.selector, "radius": self.selection_radius, "interval": self.selection_interval}
 
     @property
     def env_kwargs(self) -> dict:
@@ -212,8 +282,10 @@ def _no_constant(name: str):
 
 LIMITS = {"total_env_steps": 10**12, "buffer_size": 10**7, "batch_size": 65_536, "learning_starts": 10**9,
           "random_steps": 10**12, "max_episode_steps": 100_000, "n_collectors": 64, "envs_per_collector": 256,
-          "torch_threads": 256, "policy_delay": 1_000}
+          "torch_threads": 256, "policy_delay": 1_000, "set_embed": 4096, "selection_interval": 100_000}
 """Upper bounds that keep a typo from allocating terabytes or spawning hundreds of processes."""
+MAX_RADIUS = 10.0
+"""Largest selection_radius [m]: the table is about 1.5 m across, so this already means every object."""
 
 _KINDS = {"int": (int,), "float": (int, float), "str": (str,), "bool": (bool,), "dict": (dict,)}
 

@@ -4,15 +4,25 @@ A training config (and a run folder's ``config.json`` on ``--resume``) names its
 keys of ``ENVS``; nothing read from a file is ever turned into an import path or a call. The module
 and class of each entry are constants in this file, and the keyword arguments a config may pass to a
 non-default env are listed with their types and ranges.
+
+Envs built by a layer above ``rl`` (``PROVIDED_ENVS``) have their name fixed here and their factory
+handed in by that layer with ``register_env``: ``slide-out-selected``, the selection-aware training
+env (``TrainConfig.scene_objects``/``selector``), is ``selection.training_env.SelectedSlotsEnv``, which
+registers itself when imported; ``safemanip train`` imports it by a static import (so ``rl`` imports
+nothing from ``selection``). A config never names these envs: ``TrainConfig.rollout_env_kwargs``
+chooses one from the typed fields. Worker processes and Ray actors are handed an ``EnvBuilder``
+resolved in the parent (the factory travels by reference), so they need no registration of their own.
 """
 
 from __future__ import annotations
 
 import importlib
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Callable
 
 DEFAULT_ENV = "slide-out"
+SELECTED_ENV = "slide-out-selected"
 
 
 @dataclass(frozen=True)
@@ -36,6 +46,23 @@ LEGACY_FACTORIES = {"safemanip.env.slide_out:SlideOutEnv": "slide-out",
                     "safemanip.rl.toy:ToyReachAvoidEnv": "toy-double-integrator"}
 """The two ``env_factory`` strings older run folders and policy files carry, and the names they mean.
 Any other string is refused (it is never imported)."""
+
+
+PROVIDED_ENVS: dict[str, str] = {
+    SELECTED_ENV: "the slide-out env with N objects seen through an object selector that fills the policy's k "
+                  "slots (selection-aware training); provided by safemanip.selection.training_env",
+}
+"""Envs whose factory a higher layer registers (``register_env``), by name -> description. Not nameable by a
+config's ``env`` key."""
+
+_PROVIDED_FACTORIES: dict[str, Callable] = {}
+
+
+def register_env(name: str, factory: Callable) -> None:
+    """Hand in the factory of a ``PROVIDED_ENVS`` entry (called by the layer that builds it, at import)."""
+    if name not in PROVIDED_ENVS:
+        raise ValueError(f"{name!r} is not a provided env of the registry; provided envs: {sorted(PROVIDED_ENVS)}")
+    _PROVIDED_FACTORIES[name] = factory
 
 
 def env_choices() -> str:
@@ -64,12 +91,34 @@ def check_env(name, extra_kwargs) -> list[str]:
     return problems
 
 
-def make_env(env_kwargs: dict):
-    """Build one env from plain kwargs: ``env`` names a registry entry (default slide-out), the rest are
+@dataclass(frozen=True)
+class EnvBuilder:
+    """A resolved env: its factory and constructor arguments. Plain data that pickles (the factory by
+    reference), so a parent resolves the name once and its worker processes or Ray actors build from it."""
+
+    factory: Callable
+    kwargs: dict = field(default_factory=dict)
+
+    def __call__(self):
+        return self.factory(**self.kwargs)
+
+
+def env_builder(env_kwargs: dict) -> EnvBuilder:
+    """Resolve plain kwargs: ``env`` names a registry entry (default slide-out) or a provided env, the rest are
     that env's constructor arguments."""
     kwargs = dict(env_kwargs)
     name = kwargs.pop("env", DEFAULT_ENV)
-    if name not in ENVS:
-        raise ValueError(f"unknown env {name!r}; registered envs: {env_choices()}")
-    entry = ENVS[name]
-    return getattr(importlib.import_module(entry.module), entry.cls)(**kwargs)
+    if name in ENVS:
+        entry = ENVS[name]
+        return EnvBuilder(getattr(importlib.import_module(entry.module), entry.cls), kwargs)
+    if name in PROVIDED_ENVS:
+        if name not in _PROVIDED_FACTORIES:
+            raise ValueError(f"env {name!r} is not registered in this process; it is {PROVIDED_ENVS[name]}: import "
+                             f"that module first (safemanip train does)")
+        return EnvBuilder(_PROVIDED_FACTORIES[name], kwargs)
+    raise ValueError(f"unknown env {name!r}; registered envs: {env_choices()}")
+
+
+def make_env(env_kwargs: dict):
+    """Build one env from plain kwargs (see ``env_builder``)."""
+    return env_builder(env_kwargs)()

@@ -30,23 +30,26 @@ def run_episode(env, act, seed: int) -> EpisodeRecord:
 
 
 def _worker(args) -> list[dict]:
-    policy_arrays, env_kwargs, seeds = args
-    from safemanip.rl.envs import make_env
-    from safemanip.rl.numpy_actor import NumpyActor
+    policy_arrays, build, seeds = args
+    from safemanip.rl.numpy_actor import make_numpy_actor
 
-    actor = NumpyActor(policy_arrays)
-    env = make_env(env_kwargs)
+    actor = make_numpy_actor(policy_arrays)
+    env = build()
     return [asdict(run_episode(env, actor, s)) for s in seeds]
 
 
-def evaluate_actor(actor_arrays: list[np.ndarray], env_kwargs: dict, seeds: list[int], workers: int = 1) -> list[dict]:
-    """Deterministic rollouts of the actor on the given seeds; records in seed order."""
+def evaluate_actor(actor_arrays: list[np.ndarray] | dict[str, np.ndarray], env_kwargs: dict, seeds: list[int], workers: int = 1) -> list[dict]:
+    """Deterministic rollouts of the actor on the given seeds; records in seed order. The env is resolved here
+    (``rl.envs.env_builder``), so worker processes need no registry entries of their own."""
+    from safemanip.rl.envs import env_builder
+
+    build = env_builder(env_kwargs)
     if workers <= 1:
-        return _worker((actor_arrays, env_kwargs, seeds))
+        return _worker((actor_arrays, build, seeds))
     chunks = [seeds[i::workers] for i in range(workers)]
     from safemanip.util.procs import die_with_parent
 
     with mp.get_context("spawn").Pool(workers, initializer=die_with_parent, initargs=(os.getpid(),)) as pool:
-        parts = pool.map(_worker, [(actor_arrays, env_kwargs, c) for c in chunks if c])
+        parts = pool.map(_worker, [(actor_arrays, build, c) for c in chunks if c])
     by_seed = {r["seed"]: r for part in parts for r in part}
     return [by_seed[s] for s in seeds]

@@ -6,7 +6,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import multiprocessing as mp
 import os
 import queue
 import shutil
@@ -20,14 +19,14 @@ import torch
 
 from safemanip.rl.buffer import ReplayBuffer
 from safemanip.rl.checkpoint import find_checkpoint, read_checkpoint, recover_checkpoint, save_policy, write_checkpoint
-from safemanip.rl.collector import run_collector
+from safemanip.rl.collector import make_pool
 from safemanip.rl.config import ConfigError, TrainConfig
 from safemanip.rl.envs import make_env
 from safemanip.rl.learner import Learner
 from safemanip.rl.networks import actor_arrays
 from safemanip.rl.rollout import evaluate_actor
 from safemanip.util.files import OutputLock, atomic_write_text, check_output_dir
-from safemanip.util.procs import run_as_worker, stop_on_signals
+from safemanip.util.procs import stop_on_signals
 
 EVAL_SEED_BASE = 1_000_000  # evaluation seeds are disjoint from every training seed
 SYNC_EVERY = 50  # learner updates between actor-weight broadcasts to the workers
@@ -66,7 +65,7 @@ def policy_meta(cfg: TrainConfig, obs_dim: int, act_dim: int, eval_result: dict 
 
 
 def evaluate_now(actor, cfg: TrainConfig, episodes: int) -> dict:
-    records = evaluate_actor(actor_arrays(actor), cfg.env_kwargs, [EVAL_SEED_BASE + i for i in range(episodes)])
+    records = evaluate_actor(actor_arrays(actor), cfg.rollout_env_kwargs, [EVAL_SEED_BASE + i for i in range(episodes)])
     events = Counter(r["event"] for r in records)
     result = {"episodes": episodes, "success": events["success"] / episodes,
               "mean_length": float(np.mean([r["length"] for r in records]))}
@@ -138,10 +137,12 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.torch_threads)
 
-    probe = make_env(cfg.env_kwargs)
+    probe = make_env(cfg.rollout_env_kwargs)
     obs_dim, act_dim = probe.observation_space.shape[0], probe.action_space.shape[0]
     probe.close()
     learner = Learner(obs_dim, act_dim, cfg)
+    print(f"learner: {learner.precision.device}, {learner.precision.dtype} ({learner.precision.reason}); "
+          f"network {cfg.network}; rollouts: {cfg.backend}, {cfg.n_collectors} worker(s)")
     buffer = ReplayBuffer(cfg.buffer_size, obs_dim, act_dim)
     env_steps = updates = 0
     elapsed_before = 0.0
@@ -163,29 +164,11 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
             (run_dir / stale).unlink(missing_ok=True)
         shutil.rmtree(run_dir / "tb", ignore_errors=True)
 
-    # ---- rollout workers on the other core(s)
-    ctx = mp.get_context("spawn")
-    data_q = ctx.Queue(maxsize=64)
-    weights_qs = [ctx.Queue(maxsize=2) for _ in range(cfg.n_collectors)]
-    stop = ctx.Event()
-    counters = ctx.Array("q", [env_steps, updates])
-    workers = [ctx.Process(target=run_as_worker, daemon=True,  # the workers die with this process
-                           args=(os.getpid(), run_collector, w, cfg.env_kwargs, cfg.seed + 1000 * restarts,
-                                 cfg.envs_per_collector, data_q, weights_qs[w], stop, counters, cfg.random_steps, cfg.exploration_noise,
-                                 cfg.learning_starts, cfg.env_steps_per_update))
-               for w in range(cfg.n_collectors)]
-    for q in weights_qs:  # never block this process's exit on a queue whose reader is gone
-        q.cancel_join_thread()
-    for w in workers:
-        w.start()
+    # ---- rollout workers on the other core(s): local processes (dying with this one) or Ray actors
+    pool = make_pool(cfg, cfg.rollout_env_kwargs, cfg.seed + 1000 * restarts, env_steps, updates)
 
     def broadcast() -> None:
-        arrays = actor_arrays(learner.actor)
-        for q in weights_qs:
-            try:
-                q.put_nowait(arrays)
-            except queue.Full:
-                pass
+        pool.broadcast(actor_arrays(learner.actor))
 
     broadcast()
     log = ScalarLog(run_dir)
@@ -239,14 +222,13 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
                 got = 0
                 while True:
                     try:
-                        chunk, episodes = data_q.get(timeout=0.05 if buffer.size < cfg.learning_starts else 0.0) \
-                            if got == 0 else data_q.get_nowait()
+                        chunk, episodes = pool.get(0.05 if buffer.size < cfg.learning_starts and got == 0 else 0.0)
                     except queue.Empty:
                         break
                     buffer.add_many(chunk)
                     recent_events.extend(e for e, _ in episodes)
                     got += 1
-                env_steps = int(counters[0])
+                env_steps = pool.env_steps
                 # ---- learn, at the configured update-to-data ratio
                 can_update = buffer.size >= cfg.learning_starts and \
                     updates < (env_steps - cfg.learning_starts) / cfg.env_steps_per_update + 1
@@ -255,7 +237,7 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
                                          else max(env_steps / cfg.total_env_steps, elapsed() / (60 * cfg.minutes)))
                     last_metrics = learner.update(buffer.sample(cfg.batch_size, rng), gamma)
                     updates += 1
-                    counters[1] = updates
+                    pool.set_updates(updates)
                     if updates % SYNC_EVERY == 0:
                         broadcast()
                 elif got == 0:
@@ -263,9 +245,9 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
                 now = time.perf_counter()
                 # ---- a worker that died (an env error, out of memory) ends the run with its exit code
                 if now - last_alive_check >= 1.0:
-                    dead = [w for w in workers if w.exitcode is not None]
-                    if dead:
-                        raise RuntimeError(f"rollout worker exited with code {dead[0].exitcode}; the run stops (its "
+                    dead = pool.dead()
+                    if dead is not None:
+                        raise RuntimeError(f"rollout worker exited with code {dead}; the run stops (its "
                                            f"last checkpoint is kept: safemanip train --resume {run_dir})")
                     last_alive_check = now
                 # ---- log
@@ -294,11 +276,7 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
                     save_checkpoint()
                     last_ckpt = time.perf_counter()
         finally:
-            stop.set()
-            for w in workers:
-                w.join(timeout=5)
-                if w.is_alive():
-                    w.kill()
+            pool.close()
             if bar is not None:
                 bar.close()
         if interrupted is None:
@@ -310,6 +288,7 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
                     policy_meta(cfg, obs_dim, act_dim, last_eval_result, env_steps, updates, elapsed(), command))
         log.close()
         summary = {"env_steps": env_steps, "updates": updates, "wall_s": round(elapsed(), 1),
-                   "final_eval": last_eval_result, "best_eval": best, "interrupted": interrupted}
+                   "final_eval": last_eval_result, "best_eval": best, "interrupted": interrupted,
+                   "learner": learner.precision.as_dict()}
         atomic_write_text(run_dir / "summary.json", json.dumps(summary, indent=1))
     return run_dir

@@ -20,7 +20,9 @@ the table** (x = 0.70, 0.45, 0.20, -0.05 m; y = +0.37 m, then y = +0.22 m), at l
 straight path the box takes to the goal and clear of the stack, i.e. where training scenes had
 their far-away clutter. A dummy's constraint is ``any_contact`` (nothing to avoid) for an
 ``all`` policy and ``no_contact`` for a ``conservative`` one (the only type it knows). Dummies are
-never judged: the judge only sees the real scene.
+never judged: the judge only sees the real scene. With ``empty_slots`` (object-set policies, whose
+selector may hand over any number of objects up to k) the missing slots are all zeros instead: an
+all-zero one-hot marks a slot absent, and the set network leaves it out of its pooling.
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ def order_by_distance(state: SceneState, ids: Sequence[int]) -> list[int]:
 class Reducer:
     """Builds s_rel for a policy with ``k`` slots trained on constraint set ``policy_constraints``."""
 
-    def __init__(self, k: int, policy_constraints: str, pad: bool = False):
+    def __init__(self, k: int, policy_constraints: str, pad: bool = False, empty_slots: bool = False):
         if policy_constraints not in POLICY_CONSTRAINT_SETS:
             raise ValueError(f"policy_constraints must be one of {POLICY_CONSTRAINT_SETS}, got {policy_constraints!r}")
         if k < 0:
@@ -56,6 +58,9 @@ class Reducer:
         self.k = int(k)
         self.policy_constraints = policy_constraints
         self.pad = pad
+        self.empty_slots = empty_slots
+        """Fill missing slots with zeros (all-zero one-hot: *absent* to an object-set policy, which masks them)
+        instead of dummy objects; for set networks under a selector that picks a varying number of objects."""
         self.obs_dim = observation_dim(self.k)
         self._dummy_type = "no_contact" if policy_constraints == "conservative" else "any_contact"
 
@@ -79,6 +84,10 @@ class Reducer:
         """s_rel for the objects ``ids``; ``constraints`` holds one type per object of the *full* scene."""
         ordered, types = self.slots(state, ids, constraints)
         missing = self.k - len(ordered)
+        if missing and self.empty_slots:
+            obs = np.zeros(observation_dim(self.k), dtype=np.float32)
+            obs[:observation_dim(len(ordered))] = build_observation(state, ordered, encode_constraints(types))
+            return obs
         if missing and not self.pad:
             raise ValueError(f"only {len(ordered)} objects for a policy with k={self.k} slots; allow padding "
                              f"(--pad) to fill the rest with far-away dummy objects")

@@ -13,6 +13,8 @@ end-effector instead; their fallback is the same box-centred dynamic kNN as here
 Object selectors (``OBJECT_SELECTORS``)
   ``static-knn``   the k nearest at t = 0, fixed for the episode (never re-picks);
   ``dynamic-knn``  the k nearest, recomputed every ``interval`` control steps (default 4, the paper's);
+  ``dynamic-radius`` every object within ``radius`` of the box (nearest first, at most k), on the
+                   dynamic-knn schedule: a varying number of objects, for a set-network policy;
   ``privileged``   the k nearest objects whose ground-truth class is fragile (re-picked on the same
                    schedule as dynamic-knn), then the nearest others if there are fewer than k fragile
                    ones. Reads ``SceneView.privileged_classes``; an oracle, not a deployable method;
@@ -30,10 +32,13 @@ The registry that maps these names (and the semantic selectors') to factories li
 
 from __future__ import annotations
 
+import numpy as np
+
 from safemanip.scene.catalog import CONSTRAINT_OF_CLASS
 from safemanip.selection.base import ConstraintSelector, ObjectSelector, SceneView, nearest_ids
 
 DEFAULT_INTERVAL = 4  # paper Sec. V: Dynamic-kNN and Dynamic-VLM are queried every four time steps
+DEFAULT_RADIUS = 0.35  # dynamic-radius: about the box's half length plus one object footprint plus a step's travel
 
 
 def _due(last_t: int | None, t: int, interval: int) -> bool:
@@ -109,6 +114,29 @@ class PrivilegedSelector(DynamicKNN):
             others = [i for i in range(len(view.names)) if i not in set(ids)]
             ids += nearest_ids(view.box_position, view.positions, k - len(ids), candidates=others)
         return ids
+
+
+class DynamicRadius(DynamicKNN):
+    """Dynamic k: every object whose centre is within ``radius`` (horizontal) of the manipulated box's centre,
+    nearest first, at most k (the policy's slot count), re-picked on the dynamic-knn schedule.
+
+    The number of picked objects varies from 0 to k, so the policy must accept absent slots: an object-set
+    network (``rl/networks.py``, ``network="set"``) with the reducer's empty slots."""
+
+    name = "dynamic-radius"
+    variable_k = True
+    """Returns between 0 and k ids (the episode runner accepts fewer than k from such a selector)."""
+
+    def __init__(self, interval: int = DEFAULT_INTERVAL, radius: float = DEFAULT_RADIUS) -> None:
+        super().__init__(interval)
+        if radius <= 0:
+            raise ValueError(f"the selection radius must be > 0 m, got {radius}")
+        self.radius = float(radius)
+
+    def _pick(self, view: SceneView, k: int) -> list[int]:
+        ids = nearest_ids(view.box_position, view.positions, k)
+        near = np.linalg.norm(view.positions[ids, :2] - view.box_position[:2], axis=1) <= self.radius if ids else []
+        return [i for i, inside in zip(ids, near) if inside]
 
 
 class FullSelector:

@@ -197,7 +197,8 @@ def load_model(path: str | Path):
                                            key=lambda k: int(k.split(".")[1]))]  # "net.<layer>.weight"
     obs_dim, act_dim = weights[0].shape[1], weights[-1].shape[0]
     hidden = tuple(w.shape[0] for w in weights[:-1])
-    n_heads = len({k.split(".")[1] for k in critic_sd})
+    n_heads = critic_sd["q.weights.0"].shape[0] if "q.weights.0" in critic_sd else \
+        len({k.split(".")[1] for k in critic_sd})  # stacked heads, or the older one module per head
     actor, critic = Actor(obs_dim, act_dim, hidden), Critic(obs_dim, act_dim, hidden, n_heads=n_heads)
     actor.load_state_dict(actor_sd)
     critic.load_state_dict(critic_sd)
@@ -212,7 +213,7 @@ def learned_value(actor, critic, states: np.ndarray, batch: int = 65536) -> np.n
     with torch.no_grad():
         for i in range(0, len(states), batch):
             obs = torch.as_tensor(np.asarray(states[i:i + batch], dtype=np.float32))
-            out.append(torch.stack(critic(obs, actor(obs))).min(0).values.numpy())
+            out.append(critic(obs, actor(obs)).min(0).values.numpy())  # (heads, B) -> min over heads
     return np.concatenate(out).astype(np.float64)
 
 

@@ -1,0 +1,195 @@
+"""Rollout workers: local processes and Ray actors give transitions of the same shape and meaning (the
+same transitions, in fact, for the same seeds), and selection-aware training envs see the scene as
+deployment does."""
+
+from __future__ import annotations
+
+import queue
+import time
+
+import numpy as np
+import pytest
+
+from safemanip.env.observation import ROBOT_DIM, SLOT_DIM, observation_dim
+from safemanip.rl.collector import CHUNK, TRANSITION_KEYS, LocalPool, RayPool, RolloutWorker
+from safemanip.rl.config import TrainConfig
+from safemanip.rl.envs import make_env
+import safemanip.selection.training_env  # noqa: F401  registers the selection-aware env (as safemanip train does)
+
+ENV = {"n_objects": 2, "constraints": "conservative", "max_episode_steps": 40, "slot_order": "nearest"}
+CFG = dict(k=2, max_episode_steps=40, envs_per_collector=2, n_collectors=1, random_steps=10**6,
+           learning_starts=2 * CHUNK, batch_size=32, env_steps_per_update=4.0)
+
+
+def check_meaning(chunk: dict[str, np.ndarray], n_envs: int, episodes: list | None = None) -> None:
+    """Shapes, dtypes, and that consecutive transitions of one env chain up (s' of one = s of the next)
+    except where its episode ended: terminated (success/failure) or truncated (time limit; not terminal)."""
+    n = len(chunk["obs"])
+    assert set(chunk) == set(TRANSITION_KEYS)
+    assert chunk["obs"].shape == chunk["next_obs"].shape == (n, observation_dim(2))
+    assert chunk["act"].shape == (n, 3) and np.abs(chunk["act"]).max() <= 1.0
+    assert chunk["terminated"].dtype == bool and chunk["obs"].dtype == np.float32
+    for k in ("l", "g", "next_l", "next_g"):
+        assert chunk[k].shape == (n,) and np.isfinite(chunk[k]).all()
+    m = n - n_envs  # transition i and i + n_envs come from the same env, one step apart
+    chained = np.array([np.array_equal(chunk["next_obs"][i], chunk["obs"][i + n_envs]) for i in range(m)])
+    terminated = chunk["terminated"][:m]
+    assert not (chained & terminated).any()  # after a terminal step the env was reset
+    if episodes is not None:  # the other breaks are time-limit truncations, stored as not terminated
+        timeouts = sum(e == "timeout" for e, _ in episodes)
+        assert (~chained & ~terminated).sum() <= timeouts
+    # a terminated transition's margins say why: success (l > 0) or failure (g < 0)
+    term = chunk["terminated"]
+    assert ((chunk["next_l"][term] > 0) | (chunk["next_g"][term] < 0)).all()
+
+
+def test_rollout_worker_chunks_mean_what_the_buffer_expects():
+    worker = RolloutWorker(ENV, seed=3, worker=0, n_envs=2, noise_std=0.3)
+    chunk, episodes = worker.collect(CHUNK, random=True)
+    assert len(chunk["obs"]) == CHUNK
+    check_meaning(chunk, 2, episodes)
+    assert episodes and all(isinstance(e, str) and t >= 1 for e, t in episodes)
+
+
+def test_local_process_pool_streams_the_same_transitions_as_the_worker_class():
+    cfg = TrainConfig(**CFG)
+    pool = LocalPool(cfg, ENV, seed=5, env_steps=0, updates=0)
+    try:
+        chunk, _ = pool.get(timeout=60)
+    finally:
+        pool.close()
+    reference, _ = RolloutWorker(ENV, seed=5, worker=0, n_envs=2, noise_std=cfg.exploration_noise).collect(CHUNK, True)
+    check_meaning(chunk, 2)
+    for k in TRANSITION_KEYS:  # same seeds, same code: the very same transitions
+        np.testing.assert_array_equal(chunk[k], reference[k])
+
+
+@pytest.mark.slow
+def test_ray_actors_give_the_same_transitions_as_local_workers():
+    ray = pytest.importorskip("ray")
+    from safemanip.rl.networks import Actor, actor_arrays
+
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        cfg = TrainConfig(**{**CFG, "random_steps": CHUNK, "backend": "ray"})
+        pool = RayPool(cfg, ENV, seed=7, env_steps=0, updates=0)
+        arrays = actor_arrays(Actor(observation_dim(2), 3, (16, 16)))
+        pool.broadcast(arrays)
+        chunks = []
+        deadline = time.time() + 120
+        while len(chunks) < 2 and time.time() < deadline:  # one random chunk, then one with the actor
+            try:
+                chunks.append(pool.get(timeout=1.0)[0])
+            except queue.Empty:
+                pass
+        pool.close()
+    finally:
+        ray.shutdown()
+    assert len(chunks) == 2 and pool.env_steps == 2 * CHUNK
+    local = RolloutWorker(ENV, seed=7, worker=0, n_envs=2, noise_std=cfg.exploration_noise)
+    local.set_weights(arrays)
+    expected = [local.collect(CHUNK, random=True)[0], local.collect(CHUNK, random=False)[0]]
+    for got, want in zip(chunks, expected):
+        check_meaning(got, 2)
+        for k in TRANSITION_KEYS:
+            np.testing.assert_array_equal(got[k], want[k])
+
+
+# ------------------------------------------------------------------------------------------ selection-aware
+def test_selection_aware_env_shows_k_selected_slots_and_judges_all_objects():
+    from safemanip.selection.reducer import Reducer
+    from safemanip.selection.selectors import DynamicKNN
+    from safemanip.selection.view import EnvViewBuilder
+
+    cfg = TrainConfig(k=2, scene_objects=5, max_episode_steps=30)
+    env = make_env(cfg.rollout_env_kwargs)
+    obs, info = env.reset(seed=11)
+    assert obs.shape == (observation_dim(2),) and len(info["names"]) == 5
+    # the same pipeline by hand, as evaluation/episode.py runs it at deployment
+    builder, knn, reducer = EnvViewBuilder(), DynamicKNN(4), Reducer(2, "conservative")
+    builder.reset(env.env)
+    view = builder.view(env.env, env.env.scene_state(), 0)
+    knn.reset(view, 2)
+    np.testing.assert_array_equal(obs, reducer(env.env.scene_state(), knn.select(view, 2), env.env.constraints))
+    picks = [tuple(env.selected)]
+    for t in range(1, 13):
+        obs, _, terminated, truncated, info = env.step(np.array([0.3, 0.0, 0.0]))
+        if terminated or truncated:
+            break
+        view = builder.view(env.env, env.env.scene_state(), t)
+        np.testing.assert_array_equal(obs, reducer(env.env.scene_state(), knn.select(view, 2), env.env.constraints))
+        picks.append(tuple(env.selected))
+    if info["event"].startswith("failure:") and info["object_id"] is not None:
+        assert 0 <= info["object_id"] < 5  # the judge names objects of the full scene
+
+
+def test_dynamic_radius_training_env_leaves_absent_slots_empty():
+    cfg = TrainConfig(k=4, scene_objects=6, network="set", selector="dynamic-radius", selection_radius=0.3)
+    env = make_env(cfg.rollout_env_kwargs)
+    obs, _ = env.reset(seed=2)
+    slots = obs[ROBOT_DIM:].reshape(4, SLOT_DIM)
+    present = slots[:, 6:9].sum(1) > 0.5
+    assert present.sum() == len(env.selected) <= 4
+    assert np.all(slots[~present] == 0)  # absent slots are all zero: the set network masks them
+    box = env.env.scene_state().bottom_pos
+    for i in env.selected:
+        assert np.linalg.norm(env.env.scene_state().obj_pos[i, :2] - box[:2]) <= 0.3
+
+
+def test_config_rejects_dynamic_radius_for_the_flat_mlp():
+    from safemanip.rl.config import ConfigError
+
+    with pytest.raises(ConfigError, match="use network 'set'"):
+        TrainConfig(selector="dynamic-radius")
+    with pytest.raises(ConfigError, match="scene_objects must be"):
+        TrainConfig(k=3, scene_objects=2)
+
+
+@pytest.mark.slow
+def test_train_runs_a_set_network_with_selection_aware_dynamic_k_and_records_it(tmp_path):
+    import json
+
+    from safemanip.rl.checkpoint import load_policy
+    from safemanip.rl.numpy_actor import NumpySetActor
+    from safemanip.rl.train import train
+
+    cfg = TrainConfig(k=3, scene_objects=5, network="set", selector="dynamic-radius", set_embed=16,
+                      hidden=(32, 32), batch_size=32, buffer_size=5000, learning_starts=256, random_steps=256,
+                      eval_episodes=2, eval_every_s=60, checkpoint_every_s=60, log_every_s=60, envs_per_collector=2,
+                      env_steps_per_update=4.0, max_episode_steps=40, minutes=0.12, out_dir=str(tmp_path / "run"))
+    run = train(cfg, progress=False)
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["updates"] > 0 and summary["learner"]["dtype"] in ("fp32", "bf16") and summary["learner"]["reason"]
+    actor, meta = load_policy(run / "policy.safetensors")
+    assert isinstance(actor, NumpySetActor) and meta["network"] == "set" and meta["k"] == 3
+    assert meta["train_config"]["scene_objects"] == 5 and meta["env_kwargs"]["n_objects"] == 3  # eval sees a k=3 policy
+
+
+def test_the_selection_aware_env_comes_from_the_closed_registry_only():
+    """``slide-out-selected`` is a fixed registry name whose factory only the selection layer hands in; a config
+    cannot name it (nor a module), and the registry takes no other provided names."""
+    from safemanip.rl import envs
+    from safemanip.rl.config import ConfigError
+    from safemanip.selection.training_env import SelectedSlotsEnv
+
+    built = envs.env_builder(TrainConfig(k=2, scene_objects=3).rollout_env_kwargs)
+    assert built.factory is SelectedSlotsEnv and built.kwargs["k"] == 2 and built.kwargs["n_objects"] == 3
+    for name in (envs.SELECTED_ENV, "safemanip.selection.training_env:SelectedSlotsEnv"):
+        with pytest.raises(ConfigError, match="registered envs"):
+            TrainConfig.from_dict({"env": name})
+    with pytest.raises(ValueError, match="not a provided env"):
+        envs.register_env("my-env", SelectedSlotsEnv)
+    with pytest.raises(ValueError, match="unknown env"):
+        envs.make_env({"env": "selection:SelectedSlotsEnv"})
+
+
+def test_evaluation_workers_build_the_selection_aware_env_resolved_in_the_parent():
+    """Spawned evaluation workers register nothing: they get the resolved factory and give the in-process result."""
+    from safemanip.rl.networks import Actor, actor_arrays
+    from safemanip.rl.rollout import evaluate_actor
+
+    cfg = TrainConfig(k=2, scene_objects=4, max_episode_steps=10)
+    arrays = actor_arrays(Actor(observation_dim(2), 3, (16, 16)))
+    seeds = [5, 6]
+    assert evaluate_actor(arrays, cfg.rollout_env_kwargs, seeds, workers=2) == \
+        evaluate_actor(arrays, cfg.rollout_env_kwargs, seeds, workers=1)
