@@ -8,13 +8,13 @@ import json
 from safemanip.cli.common import CliError, add_compute_backend, add_vlm_budget, int_in
 
 EVAL_EXAMPLES = """examples:
-  safemanip eval --policy policies/rarl-k3-conservative.safetensors --episodes 500
-      (k == N: the full-state policy in its own setting)
-  safemanip eval --policy policies/rarl-k2-conservative.safetensors --n-objects 6 --selector dynamic-knn \\
+  safemanip eval --policy rarl-k2-conservative --episodes 500 --seed 7 --judge conservative
+      (k == N: the full-state policy in its own setting; a shipped policy by name)
+  safemanip eval --policy rarl-k2-conservative --n-objects 6 --selector dynamic-knn \\
       --judge conservative --episodes 2000 --out results/k2-n6-dyn
-  safemanip eval --policy policies/rarl-k2-conservative.safetensors --semantics "2 fragile, 3 durable" \\
+  safemanip eval --policy rarl-k2-conservative --semantics "2 fragile, 3 durable" \\
       --selector dynamic-vlm --episodes 500 --backend ray
-  safemanip eval --policy policies/rarl-k2-all.safetensors --semantics "2 fragile, 2 soft, 1 durable" \\
+  safemanip eval --policy runs/k2-all/policy.safetensors --semantics "2 fragile, 2 soft, 1 durable" \\
       --selector dynamic-vlm --constraints vlm --vlm-backend openai --vlm-model gpt-4o --vlm-cache vlm_cache
 
 "nearest" (static-knn, dynamic-knn, privileged) = horizontal distance from an object's centre to the
