@@ -29,9 +29,9 @@ from safemanip.scene.embodiment import make_embodiment
 STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 
 
-def _physics_state(env: SlideOutEnv) -> np.ndarray:
-    state = np.empty(mujoco.mj_stateSize(env.model, STATE))
-    mujoco.mj_getState(env.model, env.data, state, STATE)
+def _physics_state(model, data) -> np.ndarray:
+    state = np.empty(mujoco.mj_stateSize(model, STATE))
+    mujoco.mj_getState(model, data, state, STATE)
     return state
 
 
@@ -43,7 +43,7 @@ def env_rate(env: SlideOutEnv, steps: int, rng):
     acts = np.zeros((steps, env.model.na))
     _, info = env.reset(seed=int(rng.integers(1 << 30)))
     controller.reset()
-    starts = {0: _physics_state(env)}
+    starts = {0: _physics_state(env.model, env.data)}
     elapsed = 0.0
     for i in range(steps):
         action = np.clip(controller.act(info, env) + noise[i], -1, 1)  # the controller is not timed
@@ -57,7 +57,7 @@ def env_rate(env: SlideOutEnv, steps: int, rng):
         acts[i] = env._bench_act
         if term or trunc:
             controller.reset()
-            starts[i + 1] = _physics_state(env)
+            starts[i + 1] = _physics_state(env.model, env.data)
     return steps / elapsed, steps / len(starts), ctrls, acts, starts
 
 
@@ -89,7 +89,7 @@ def component_costs(env: SlideOutEnv, repeats: int = 2000) -> tuple[float, float
     """(controller us per call, judge us per step) on the env's current state."""
     m, d, b = env.model, env.data, env.binding
     velocity = np.array([0.5, 0.1, 0.0])
-    saved = _physics_state(env)
+    saved = _physics_state(env.model, env.data)
     t0 = time.perf_counter()
     for _ in range(repeats):
         env.robot.command_velocity(m, d, b, velocity, 0.05)
@@ -136,7 +136,7 @@ def main() -> None:
                         mujoco.mj_setState(env.model, env.data, s, STATE)
                         bare_data.qpos[:], bare_data.qvel[:], bare_data.act[:] = env.data.qpos, env.data.qvel, env.data.act
                         bare_data.time = env.data.time
-                        bare_starts[i] = _physics_state_of(bare, bare_data)
+                        bare_starts[i] = _physics_state(bare, bare_data)
                     bares.append(raw_rate(bare, bare_data, ctrls, acts, bare_starts, env.n_substeps))
                 env.reset(seed=1)
                 env.step(np.array([0.5, 0.0, 0.0]))
@@ -149,12 +149,6 @@ def main() -> None:
     for robot, n, s, e, r, ratio, b, c, j, length in rows:
         print(f"{robot:>6} {n:>2} {s:>5} {e:>11.0f} {r:>11.0f} {ratio:>5.2f} {b:>13.0f} {c:>13.1f} {j:>8.1f} "
               f"{length:>7.1f}")
-
-
-def _physics_state_of(model, data) -> np.ndarray:
-    state = np.empty(mujoco.mj_stateSize(model, STATE))
-    mujoco.mj_getState(model, data, state, STATE)
-    return state
 
 
 if __name__ == "__main__":

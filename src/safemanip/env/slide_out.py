@@ -22,10 +22,10 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from safemanip.control.diff_ik import MAX_EE_ACCEL, MAX_EE_SPEED, limit_ee_velocity
+from safemanip.control.diff_ik import MAX_EE_ACCEL, MAX_EE_SPEED, limit_ee_velocity, limit_norm
 from safemanip.env import margins as M
 from safemanip.env.observation import SLOT_DIM, SceneState, encode_constraints, observation_space
-from safemanip.scene.builder import CONTROL_DT, SUBSTEPS, TIMESTEP, SceneIndex, build_model
+from safemanip.scene.builder import CONTROL_DT, SUBSTEPS, SceneIndex, build_model
 from safemanip.scene.catalog import CONSTRAINT_TYPES, load_catalog, names_of_class
 from safemanip.scene.config import GEOMETRY, SceneConfig
 from safemanip.scene.embodiment import EMBODIMENTS, make_embodiment
@@ -186,10 +186,7 @@ class SlideOutEnv(gym.Env):
         if not (math.isfinite(request[0]) and math.isfinite(request[1]) and math.isfinite(request[2])):
             raise ValueError(f"action must be finite, got {request.tolist()}: a NaN action usually means the "
                              "policy's weights or its observation hold NaN")
-        norm = math.sqrt(float(request @ request))
-        if norm > 1.0:
-            request = request / norm  # limited by norm, not per axis: no faster diagonals
-        request = request * self.max_speed
+        request = limit_norm(request, 1.0) * self.max_speed  # by norm, not per axis: no faster diagonals
         z, (z_low, z_high) = self._values[2], self._lift_band
         # the lift band; coming down, the box lands softly (an exponential approach over ~4 steps, not a drop)
         request[2] = min(max(request[2], (z_low - z) / (4 * CONTROL_DT)), (z_high - z) / CONTROL_DT)
@@ -373,7 +370,8 @@ class SlideOutEnv(gym.Env):
         if not self._soft_flags[i]:
             return float(np.min(distance)) - th.collision  # = margin_no_contact
         # the held box's velocity stands for the robot's: it is the fastest-moving part near the table
-        relative = history[hit][:, gather.h_box_vel] - history[hit][:, gather.h_obj_vel[i]]
+        rows = history[hit]
+        relative = rows[:, gather.h_box_vel] - rows[:, gather.h_obj_vel[i]]
         speed = np.sqrt(np.einsum("ij,ij->i", relative, relative))
         return min(M.margin_soft_contact(float(dd), float(sp), th.collision, th.relative_speed)
                    for dd, sp in zip(distance, speed))

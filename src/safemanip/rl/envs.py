@@ -1,8 +1,8 @@
 """The closed registry of environments a run can train on, by name.
 
 A training config (and a run folder's ``config.json`` on ``--resume``) names its env with one of the
-keys of ``ENVS``; nothing read from a file is ever turned into an import path or a call. The module
-and class of each entry are constants in this file, and the keyword arguments a config may pass to a
+keys of ``ENVS``; nothing read from a file is ever turned into an import path or a call. Each entry's
+class comes from a function in this file, and the keyword arguments a config may pass to a
 non-default env are listed with their types and ranges.
 
 Envs built by a layer above ``rl`` (``PROVIDED_ENVS``) have their name fixed here and their factory
@@ -16,7 +16,6 @@ resolved in the parent (the factory travels by reference), so they need no regis
 
 from __future__ import annotations
 
-import importlib
 import math
 from dataclasses import dataclass, field
 from typing import Callable
@@ -25,19 +24,31 @@ DEFAULT_ENV = "slide-out"
 SELECTED_ENV = "slide-out-selected"
 
 
+def _slide_out():
+    from safemanip.env.slide_out import SlideOutEnv
+
+    return SlideOutEnv
+
+
+def _toy_double_integrator():
+    from safemanip.toy.system import ToyReachAvoidEnv
+
+    return ToyReachAvoidEnv
+
+
 @dataclass(frozen=True)
 class EnvEntry:
-    module: str
-    cls: str
+    env_class: Callable[[], type]
+    """Returns the env class (imported on first use: the toy's users need not load MuJoCo)."""
     description: str
     extra_kwargs: dict[str, tuple[type, float, float]]
     """Keyword arguments a config may set through ``extra_env_kwargs``: name -> (type, min, max)."""
 
 
 ENVS: dict[str, EnvEntry] = {
-    "slide-out": EnvEntry("safemanip.env.slide_out", "SlideOutEnv",
+    "slide-out": EnvEntry(_slide_out,
                           "the paper's task: slide the bottom box out and to the goal through clutter", {}),
-    "toy-double-integrator": EnvEntry("safemanip.toy.system", "ToyReachAvoidEnv",
+    "toy-double-integrator": EnvEntry(_toy_double_integrator,
                                       "planar double integrator with one obstacle (the learner's test oracle)",
                                       {"max_episode_steps": (int, 1, 100_000)}),
 }
@@ -109,8 +120,7 @@ def env_builder(env_kwargs: dict) -> EnvBuilder:
     kwargs = dict(env_kwargs)
     name = kwargs.pop("env", DEFAULT_ENV)
     if name in ENVS:
-        entry = ENVS[name]
-        return EnvBuilder(getattr(importlib.import_module(entry.module), entry.cls), kwargs)
+        return EnvBuilder(ENVS[name].env_class(), kwargs)
     if name in PROVIDED_ENVS:
         if name not in _PROVIDED_FACTORIES:
             raise ValueError(f"env {name!r} is not registered in this process; it is {PROVIDED_ENVS[name]}: import "

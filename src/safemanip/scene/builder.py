@@ -112,8 +112,7 @@ def _add_part(body, name, part, obj: CatalogObject, total_volume: float):
 def _add_judge_sensors(spec: mujoco.MjSpec, embodiment: Embodiment, n_objects: int) -> None:
     """Sensors with one history sample per substep (layout read by ``SceneIndex.history_index``)."""
     def sensor(name, kind, objtype, objname, **extra):
-        s = spec.add_sensor(name=name, type=kind, objtype=objtype, objname=objname, nsample=SUBSTEPS, **extra)
-        return s
+        spec.add_sensor(name=name, type=kind, objtype=objtype, objname=objname, nsample=SUBSTEPS, **extra)
 
     body, xbody = mujoco.mjtObj.mjOBJ_BODY, mujoco.mjtObj.mjOBJ_XBODY
     for i in range(n_objects):

@@ -35,7 +35,7 @@ import mujoco
 import numpy as np
 
 from safemanip.control.diff_ik import dls_joint_velocity, limit_joint_velocity, orientation_error
-from safemanip.scene.config import TaskGeometry
+from safemanip.scene.config import GEOMETRY, TaskGeometry
 
 COLLIDE_TABLE = 1  # contype/conaffinity bit of the table and everything that rests on it
 COLLIDE_OBJECTS = 2  # bit shared by the boxes and the clutter
@@ -187,7 +187,7 @@ class PandaArm:
 
     # ------------------------------------------------------------------ building
     def attach(self, spec: mujoco.MjSpec, geo: TaskGeometry, box_rgba, box_friction: float, dt: float) -> None:
-        home, site_pose = home_configuration(geo)
+        _, site_pose = home_configuration(geo)
         robot = load_panda_spec(self.visual, self.gap)
         base = spec.worldbody.add_frame(pos=[BASE_XY[0], BASE_XY[1], BASE_Z],
                                         quat=[math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)])  # face +y
@@ -217,7 +217,6 @@ class PandaArm:
             servo.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
             servo.forcerange = [-FRANKA_JOINT_TORQUES[i], FRANKA_JOINT_TORQUES[i]]
             servo.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
-        self._home = home
 
     def bind(self, model: mujoco.MjModel) -> PandaBinding:
         joints = [model.joint(f"panda/{j}") for j in JOINTS]
@@ -226,7 +225,7 @@ class PandaArm:
         if servos != list(range(servos[0], servos[0] + 7)) or acts != list(range(acts[0], acts[0] + 7)):
             raise RuntimeError("the Panda's servos must be contiguous in the compiled model")
         dofs = np.array([j.dofadr[0] for j in joints])
-        home, pose = home_configuration(_geometry_of(model))
+        home, pose = home_configuration(GEOMETRY)  # the geometry every scene is built with
         nv = model.nv
         return PandaBinding(
             qpos_adr=np.array([j.qposadr[0] for j in joints]), dof_adr=dofs,
@@ -267,10 +266,6 @@ class PandaArm:
         # ramp the servo set-points linearly from where they are to qdot over the step
         data.ctrl[binding.actuator_ids] = (qdot - data.act[binding.act_adr]) / dt
 
-    @staticmethod
-    def joint_state(data, binding: PandaBinding) -> tuple[np.ndarray, np.ndarray]:
-        return data.qpos[binding.qpos_adr].copy(), data.qvel[binding.dof_adr].copy()
-
 
 _LOWER = FRANKA_JOINT_RANGES[:, 0] + LIMIT_MARGIN
 _UPPER = FRANKA_JOINT_RANGES[:, 1] - LIMIT_MARGIN
@@ -283,11 +278,6 @@ def _as_slice(ids: np.ndarray):
     if len(ids) and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids))):
         return slice(int(ids[0]), int(ids[0]) + len(ids))
     return ids
-
-
-def _geometry_of(model) -> TaskGeometry:
-    from safemanip.scene.config import GEOMETRY
-    return GEOMETRY
 
 
 @lru_cache(maxsize=4)

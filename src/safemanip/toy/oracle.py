@@ -29,6 +29,7 @@ model, its command, its numbers and the gamma sweep behind the defaults: tests/d
 from __future__ import annotations
 
 import json
+import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -414,7 +415,7 @@ def main(argv: list[str] | None = None) -> int:
             key, _, value = item.partition("=")
             overrides[key] = json.loads(value)
         cfg = toy_config(args.out, args.minutes, seed=args.seed, **overrides)
-        command = "python -m safemanip.toy " + " ".join(argv if argv is not None else __import__("sys").argv[1:])
+        command = "python -m safemanip.toy " + " ".join(argv if argv is not None else sys.argv[1:])
         t0 = time.perf_counter()
         run_dir = train(cfg, progress=False, command=command)
         wall = time.perf_counter() - t0
