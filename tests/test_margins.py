@@ -178,7 +178,9 @@ def test_margins_return_python_floats():
 def test_at_rest_margin_is_a_distance_and_positive_only_below_v_place():
     from safemanip.env.margins import margin_at_rest
 
-    assert margin_at_rest(0.0, 0.05, 0.1) == pytest.approx(0.005)
-    assert margin_at_rest(0.05, 0.05, 0.1) == pytest.approx(0.0)
-    assert margin_at_rest(1.45, 0.05, 0.1) == pytest.approx(-0.14)  # metres: comparable with l1 and l2
-    assert (margin_at_rest(0.049, 0.05, 0.1) > 0) and (margin_at_rest(0.051, 0.05, 0.1) < 0)
+    assert margin_at_rest(0.0, 0.05, 0.1, 1.0) == pytest.approx(0.05)  # at rest: the size of l2 (at most 0.08)
+    assert margin_at_rest(0.05, 0.05, 0.1, 1.0) == pytest.approx(0.0)
+    assert margin_at_rest(1.45, 0.05, 0.1, 1.0) == pytest.approx(-0.14)  # metres: comparable with l1 and l2
+    assert (margin_at_rest(0.049, 0.05, 0.1, 1.0) > 0) and (margin_at_rest(0.051, 0.05, 0.1, 1.0) < 0)
+    # continuous at v_place from both sides (the backup needs a Lipschitz l)
+    assert abs(margin_at_rest(0.05 - 1e-9, 0.05, 0.1, 1.0) - margin_at_rest(0.05 + 1e-9, 0.05, 0.1, 1.0)) < 1e-8

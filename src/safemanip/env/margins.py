@@ -31,7 +31,10 @@ class Thresholds:
     relative_speed: float = 1.0
     """Soft-contact relative velocity threshold (paper Table V: 1.0 m/s)."""
     place_horizon: float = 0.1
-    """l3's scale [s]: speed margins become distances travelled in this time (see ``margin_at_rest``)."""
+    """l3's scale above v_place [s]: excess speed becomes the distance travelled in this time (see
+    ``margin_at_rest``)."""
+    rest_horizon: float = 1.0
+    """l3's scale below v_place [s]: a box at rest scores v_place x 1 s = 5 cm, the size of l2's margin."""
     place_speed: float = 0.05
     """v_place: the box counts as placed only when slower than this [m/s]. 5 cm/s is 3 % of the Panda's
     1.7 m/s and a Panda stops from it in 4 ms at 13 m/s^2, so the box is at rest in the goal for any
@@ -63,15 +66,21 @@ def margin_top_box(top_xy, top_xy_start, top_up_z: float, max_displacement: floa
     return min(displaced, float(top_up_z) - min_up)
 
 
-def margin_at_rest(speed: float, place_speed: float, horizon: float) -> float:
-    """l3 = horizon * (v_place - ||v_bot||): the box is placed, not passing through.
+def margin_at_rest(speed: float, place_speed: float, horizon: float, rest_horizon: float) -> float:
+    """l3: the box is placed, not passing through. Positive below v_place, in metres like l1 and l2.
 
-    In metres, like l1 and l2: the distance the box would travel in ``horizon`` seconds beyond what a
-    placed box may. In m/s the term dwarfed the distance to the goal while the box moved fast, so
-    l = min(l1, l2, l3) ranked a fast pull (which the tablecloth trick needs) as far from success as it
-    could be; in metres it matters only close to the goal. Its sign, and so the target set, is the same.
+    Above v_place: ``horizon * (v_place - speed)``, the distance the box would travel in ``horizon``
+    seconds beyond what a placed box may. In m/s the term dwarfed the distance to the goal while the box
+    moved fast, so l = min(l1, l2, l3) ranked a fast pull (which the tablecloth trick needs) as far from
+    success as it could be; with a short horizon it matters only close to the goal.
+    Below v_place: ``rest_horizon * (v_place - speed)``. With the short horizon here too, a placed box
+    was worth at most 5 mm, under the critic's noise and half the collision threshold, so reaching the
+    target barely showed in the value. The longer horizon lets a box at rest score as much as l2 does.
+    Continuous and piecewise linear (Lipschitz, as the backup needs); its sign, and so the target set,
+    is v < v_place either way.
     """
-    return float(horizon * (place_speed - speed))
+    excess = place_speed - speed
+    return float((rest_horizon if excess > 0.0 else horizon) * excess)
 
 
 def worst_top_box(top_xy_path: np.ndarray, top_xy_start, top_up_z_path: np.ndarray, max_displacement: float,

@@ -320,7 +320,7 @@ class SlideOutEnv(gym.Env):
                                       th.top_box_displacement, th.top_box_min_up),
             "g_oob": M.margin_in_workspace(bottom, geo.table_half_extents, geo.workspace_inset),
             "l3": M.margin_at_rest(math.sqrt(v[3] * v[3] + v[4] * v[4] + v[5] * v[5]), th.place_speed,
-                                   th.place_horizon),
+                                   th.place_horizon, th.rest_horizon),
         }
         history = None
         if substeps:
