@@ -31,6 +31,24 @@ def heldout_v2() -> dict[str, list[str]]:
     return json.loads(DATA.joinpath("heldout_names_v2.json").read_text())["classes"]
 
 
+def heldout_v3() -> dict[str, list[str]]:
+    return json.loads(DATA.joinpath("heldout_names_v3.json").read_text())["classes"]
+
+
+def test_heldout_v3_shares_no_word_with_any_example_name_nor_with_heldout_v2():
+    """v2 has been measured on, so it may become example data; v3 must be new to both."""
+    vocab = example_words()
+    for names in heldout_v2().values():
+        for n in names:
+            vocab |= words(n)
+    shared = {n: sorted(words(n) & vocab) for names in heldout_v3().values() for n in names if words(n) & vocab}
+    assert not shared, f"held-out v3 names sharing a word with an example or held-out v2 name: {shared}"
+    held = heldout_v3()
+    assert len(held["fragile"]) >= 50 and min(len(v) for v in held.values()) >= 30
+    all_names = [n for v in held.values() for n in v]
+    assert len(all_names) == len(set(all_names))
+
+
 def test_heldout_v2_shares_no_word_with_any_example_name():
     vocab = example_words()
     assert len(vocab) > 200
