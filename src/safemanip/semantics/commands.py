@@ -65,7 +65,7 @@ def classify_constraints(backend_name: str | Backend, names: Sequence[str], *, t
 PAPER_OBJECTS = ("toy squirrel", "toy sheep", "toy android", "red mug", "blue mug", "porcelain mug", "supplement bottle",
                  "plant pot")
 """The eight objects of the paper's experiments (its Tables III and IV are over these)."""
-OBJECT_SETS = ("catalog", "paper", "heldout", "heldout-v2")
+OBJECT_SETS = ("catalog", "paper", "heldout", "heldout-v2", "heldout-v3")
 
 
 def object_set(which: str) -> dict[str, str]:
@@ -79,8 +79,9 @@ def object_set(which: str) -> dict[str, str]:
     if which == "paper":
         catalog = load_catalog()
         return {n: catalog[n].constraint for n in PAPER_OBJECTS}
-    if which in ("heldout", "heldout-v2"):
-        filename = "heldout_names_v1.json" if which == "heldout" else "heldout_names_v2.json"
+    if which in ("heldout", "heldout-v2", "heldout-v3"):
+        filename = {"heldout": "heldout_names_v1.json", "heldout-v2": "heldout_names_v2.json",
+                    "heldout-v3": "heldout_names_v3.json"}[which]
         raw = json.loads(resources.files("safemanip.semantics").joinpath("data", filename).read_text(encoding="utf-8"))
         return {n: CONSTRAINT_OF_CLASS[c] for c in SEMANTIC_CLASSES for n in sorted(raw["classes"][c])}
     raise ValueError(f"unknown object set {which!r}; choose one of {OBJECT_SETS}")

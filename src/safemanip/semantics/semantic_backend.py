@@ -40,7 +40,7 @@ DEFAULT_EXAMPLES = "class_examples_v3.json"
 """v3 stays the default: v4 (issue 11) was measured once on heldout_names_v2.json and the catalog and did not
 meet the unsafe-error target there (README, semantic section); ``--semantic-examples v4`` selects it."""
 EXAMPLE_FILES = {"v1": "class_examples_v1.json", "v2": "class_examples_v2.json", "v3": "class_examples_v3.json",
-                 "v4": "class_examples_v4.json"}
+                 "v4": "class_examples_v4.json", "v5": "class_examples_v5.json"}
 """Shipped example-set versions (``--semantic-examples v1`` / ``v2`` reproduce the earlier classifiers)."""
 DECISION_RULES = ("argmax", "strictest_within_margin", "logistic_strictest_within_margin", "logistic_fragile_threshold")
 LOGISTIC_DEFAULTS = {"l2": 0.1, "scale": 10.0, "iterations": 300, "learning_rate": 0.5}
