@@ -51,6 +51,21 @@ def test_rollout_worker_chunks_mean_what_the_buffer_expects():
     assert episodes and all(isinstance(e, str) and t >= 1 for e, t in episodes)
 
 
+def test_per_episode_noise_is_drawn_in_range_and_redrawn_at_each_reset():
+    from safemanip.rl.networks import Actor, actor_arrays
+
+    worker = RolloutWorker(ENV, seed=3, worker=0, n_envs=2, noise_std=0.3, noise_per_episode=True)
+    worker.set_weights(actor_arrays(Actor(observation_dim(2), 3, (16, 16))))
+    seen = {tuple(worker.env_noise)}
+    for _ in range(60):
+        worker.step_all(random=False)
+        assert ((worker.env_noise >= 0.0) & (worker.env_noise <= 0.3)).all()
+        seen.add(tuple(worker.env_noise))
+    assert len(seen) > 1 and worker.episodes  # episodes ended and drew new stds
+    fixed = RolloutWorker(ENV, seed=3, worker=0, n_envs=2, noise_std=0.3)
+    assert (fixed.env_noise == 0.3).all()
+
+
 def test_local_process_pool_streams_the_same_transitions_as_the_worker_class():
     cfg = TrainConfig(**CFG)
     pool = LocalPool(cfg, ENV, seed=5, env_steps=0, updates=0)
@@ -58,7 +73,8 @@ def test_local_process_pool_streams_the_same_transitions_as_the_worker_class():
         chunk, _ = pool.get(timeout=60)
     finally:
         pool.close()
-    reference, _ = RolloutWorker(ENV, seed=5, worker=0, n_envs=2, noise_std=cfg.exploration_noise).collect(CHUNK, True)
+    reference, _ = RolloutWorker(ENV, seed=5, worker=0, n_envs=2, noise_std=cfg.exploration_noise,
+                              noise_per_episode=cfg.noise_per_episode).collect(CHUNK, True)
     check_meaning(chunk, 2)
     for k in TRANSITION_KEYS:  # same seeds, same code: the very same transitions
         np.testing.assert_array_equal(chunk[k], reference[k])
@@ -86,7 +102,8 @@ def test_ray_actors_give_the_same_transitions_as_local_workers():
     finally:
         ray.shutdown()
     assert len(chunks) == 2 and pool.env_steps == 2 * CHUNK
-    local = RolloutWorker(ENV, seed=7, worker=0, n_envs=2, noise_std=cfg.exploration_noise)
+    local = RolloutWorker(ENV, seed=7, worker=0, n_envs=2, noise_std=cfg.exploration_noise,
+                          noise_per_episode=cfg.noise_per_episode)
     local.set_weights(arrays)
     expected = [local.collect(CHUNK, random=True)[0], local.collect(CHUNK, random=False)[0]]
     for got, want in zip(chunks, expected):

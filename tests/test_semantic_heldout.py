@@ -17,10 +17,12 @@ def words(name: str) -> set[str]:
     return out
 
 
-def example_words() -> set[str]:
+def example_words(up_to_version: int | None = None) -> set[str]:
     vocab: set[str] = set()
     for path in DATA.iterdir():
         if path.name.startswith("class_examples_v") and path.name.endswith(".json"):
+            if up_to_version is not None and int(path.name[len("class_examples_v"):-len(".json")]) > up_to_version:
+                continue
             for names in json.loads(path.read_text())["classes"].values():
                 for n in names:
                     vocab |= words(n)
@@ -49,8 +51,9 @@ def test_heldout_v3_shares_no_word_with_any_example_name_nor_with_heldout_v2():
     assert len(all_names) == len(set(all_names))
 
 
-def test_heldout_v2_shares_no_word_with_any_example_name():
-    vocab = example_words()
+def test_heldout_v2_shares_no_word_with_any_example_name_up_to_v4():
+    """v2 was the test for v3 and v4; v5 took its names as examples once it had been measured on."""
+    vocab = example_words(up_to_version=4)
     assert len(vocab) > 200
     shared = {n: sorted(words(n) & vocab) for names in heldout_v2().values() for n in names if words(n) & vocab}
     assert not shared, f"held-out names sharing a word with an example name: {shared}"
@@ -63,19 +66,23 @@ def test_heldout_v2_is_big_enough_for_a_two_percent_unsafe_rate():
     assert len(all_names) == len(set(all_names))
 
 
-def test_measured_figures_on_heldout_v2_and_the_catalog():
-    """The figures in the README, measured once (each name classified alone; deterministic). Neither v3 nor
-    v4 meets issue 11's targets on the v2 list (unsafe-error rate <= 2 %, balanced accuracy >= 0.85)."""
+def test_measured_figures_on_heldout_lists_and_the_catalog():
+    """The figures in the README, measured once (each name classified alone; deterministic). No classifier meets
+    issue 11's targets (unsafe-error rate <= 2 %, balanced accuracy >= 0.85) on a held-out list: v3 and v4 on
+    held-out v2, and v3, v4, v5 on held-out v3 (v5 took held-out v2's names as examples)."""
     from safemanip.semantics.commands import name_confusion
     from safemanip.semantics.semantic_backend import SemanticBackend
 
     expected = {("v3", "heldout-v2"): (6, 0.790), ("v4", "heldout-v2"): (5, 0.811),
-                ("v3", "catalog"): (0, 0.861), ("v4", "catalog"): (1, 0.831)}
-    for version in ("v3", "v4"):
+                ("v3", "heldout-v3"): (13, 0.628), ("v4", "heldout-v3"): (10, 0.640), ("v5", "heldout-v3"): (4, 0.613),
+                ("v3", "catalog"): (0, 0.861), ("v4", "catalog"): (1, 0.831), ("v5", "catalog"): (0, 0.750)}
+    for version in ("v3", "v4", "v5"):
         backend = SemanticBackend(examples_file=version)
-        for objects in ("heldout-v2", "catalog"):
+        for objects in ("heldout-v2", "heldout-v3", "catalog"):
+            if (version, objects) not in expected:
+                continue
             r = name_confusion(backend, objects)
             unsafe, bal = expected[(version, objects)]
-            assert r["names"] == (115 if objects == "heldout-v2" else 35)
+            assert r["names"] == (35 if objects == "catalog" else 115)
             assert sum(r["counts"]["no_contact"].values()) - r["counts"]["no_contact"]["no_contact"] == unsafe, r["wrong"]
             assert abs(r["balanced_accuracy"] - bal) < 0.0015, r

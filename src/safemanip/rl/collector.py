@@ -38,9 +38,12 @@ class RolloutWorker:
     """``n_envs`` envs stepped round-robin with the exploration policy; ``collect`` returns transition chunks.
     ``env``: the env's kwargs for the registry, or an ``EnvBuilder`` already resolved (what the pools send)."""
 
-    def __init__(self, env: dict | EnvBuilder, seed: int, worker: int, n_envs: int, noise_std: float):
+    def __init__(self, env: dict | EnvBuilder, seed: int, worker: int, n_envs: int, noise_std: float,
+                 noise_per_episode: bool = False):
         self.rng = np.random.default_rng(seed + 7919 * worker)
         self.noise_std = noise_std
+        self.noise_per_episode = noise_per_episode
+        self.env_noise = np.array([self._draw_noise() for _ in range(n_envs)])
         build = env if isinstance(env, EnvBuilder) else env_builder(env)
         self.envs = [build() for _ in range(n_envs)]
         self.obs, self.infos = [], []
@@ -51,6 +54,10 @@ class RolloutWorker:
         self.actor = None
         self.buf: dict[str, list] = {k: [] for k in TRANSITION_KEYS}
         self.episodes: list[tuple[str, int]] = []
+
+    def _draw_noise(self) -> float:
+        """This episode's noise std: ``noise_std``, or with ``noise_per_episode`` uniform in [0, noise_std]."""
+        return float(self.rng.uniform(0.0, self.noise_std)) if self.noise_per_episode else self.noise_std
 
     def set_weights(self, arrays) -> None:
         from safemanip.rl.numpy_actor import make_numpy_actor
@@ -64,7 +71,8 @@ class RolloutWorker:
             actions = self.rng.uniform(-1, 1, size=(len(envs), *envs[0].action_space.shape))
         else:
             actions = self.actor(np.stack(self.obs))
-            actions = np.clip(actions + self.rng.normal(0, self.noise_std, size=actions.shape), -1, 1)
+            noise = self.rng.normal(0.0, 1.0, size=actions.shape) * self.env_noise[:, None]
+            actions = np.clip(actions + noise, -1, 1)
         for i, env in enumerate(envs):
             next_o, _, terminated, truncated, info = env.step(actions[i])
             buf["obs"].append(self.obs[i])
@@ -78,6 +86,7 @@ class RolloutWorker:
             if terminated or truncated:
                 self.episodes.append((info["event"], info["t"]))
                 next_o, info = env.reset()
+                self.env_noise[i] = self._draw_noise()
             self.obs[i], self.infos[i] = next_o, info
         return len(envs)
 
@@ -102,11 +111,12 @@ class RolloutWorker:
 
 # ------------------------------------------------------------------------------------------ local processes
 def run_collector(worker: int, env: EnvBuilder, seed: int, n_envs: int, data_q, weights_q, stop, counters,
-                  random_steps: int, noise_std: float, learning_starts: int, steps_per_update: float) -> None:
+                  random_steps: int, noise_std: float, learning_starts: int, steps_per_update: float,
+                  noise_per_episode: bool = False) -> None:
     """Worker process main loop. ``counters[0]`` is the total env steps (all workers), ``counters[1]`` learner updates."""
     import multiprocessing as mp
 
-    rollout = RolloutWorker(env, seed, worker, n_envs, noise_std)
+    rollout = RolloutWorker(env, seed, worker, n_envs, noise_std, noise_per_episode)
     parent = mp.parent_process()
     while not stop.is_set():
         if parent is not None and not parent.is_alive():  # the learner was killed: do not linger as an orphan
@@ -146,7 +156,8 @@ class LocalPool:
         self.workers = [ctx.Process(target=run_as_worker, daemon=True,  # the workers die with this process
                                     args=(os.getpid(), run_collector, w, build, seed, cfg.envs_per_collector,
                                           self.data_q, self.weights_qs[w], self.stop, self.counters, cfg.random_steps,
-                                          cfg.exploration_noise, cfg.learning_starts, cfg.env_steps_per_update))
+                                          cfg.exploration_noise, cfg.learning_starts, cfg.env_steps_per_update,
+                                          cfg.noise_per_episode))
                         for w in range(cfg.n_collectors)]
         for q in self.weights_qs:  # never block this process's exit on a queue whose reader is gone
             q.cancel_join_thread()
@@ -201,7 +212,8 @@ class RayPool:
         self.ray = ray
         self.cfg = cfg
         remote = ray.remote(num_cpus=1)(RolloutWorker)
-        self.actors = [remote.remote(build, seed, w, cfg.envs_per_collector, cfg.exploration_noise)
+        self.actors = [remote.remote(build, seed, w, cfg.envs_per_collector, cfg.exploration_noise,
+                                      cfg.noise_per_episode)
                        for w in range(cfg.n_collectors)]
         self.env_steps, self.updates = int(env_steps), int(updates)
         self.in_flight: dict = {}  # ObjectRef -> actor index

@@ -367,7 +367,8 @@ DEFAULT_TRAIN = {
     # faster target tracking (Table V: polyak 0.995, lr 1e-3, batch 200) is what keeps 0.998 from parking
     "polyak": 0.98, "learning_rate": 2e-3, "batch_size": 128, "env_steps_per_update": 2.0,
     "hidden": [64, 64], "buffer_size": 200_000, "learning_starts": 2000, "random_steps": 5000,
-    "exploration_noise": 0.3, "envs_per_collector": 8, "n_collectors": 1, "torch_threads": 1,
+    "exploration_noise": 0.3, "noise_per_episode": False, "target_noise": 0.2, "target_noise_clip": 0.5,
+    "envs_per_collector": 8, "n_collectors": 1, "torch_threads": 1,
     "eval_episodes": 50, "eval_every_s": 30.0, "checkpoint_every_s": 60.0, "log_every_s": 10.0}
 
 
