@@ -168,3 +168,50 @@ def test_cache_entries_of_another_prompt_or_schema_version_are_not_used(tmp_path
             entry.write_text(json.dumps(stored))
             backend_for(server, cache=ResponseCache(tmp_path, mode="cache_only")).assign_constraints(
                 ConstraintQuery(names=NAMES))
+
+
+def test_sweep_takes_the_vlm_limits_and_records_the_open_breaker(capsys, tmp_path):
+    """The same flags on sweep: they reach the cells that query the backend (and only those)."""
+    from safemanip.cli import main
+
+    from test_evaluation import make_policy
+
+    policy = make_policy(tmp_path / "rarl-k2-all.safetensors", 2, constraints="all")
+    cfg = {"name": "mini-vlm", "title": "mini", "figure": "fig5", "episodes": 2, "seed": 0, "judge": "ground-truth",
+           "policies": [policy], "n_objects": [3], "semantics": ["1 fragile, 1 soft, 1 durable"],
+           "pairs": [["dynamic-vlm", "vlm"], ["dynamic-knn", "ground-truth"]],
+           "table": {"rows": ["k"], "columns": ["n_objects", "selector"]}}
+    path = tmp_path / "mini.json"
+    path.write_text(json.dumps(cfg))
+    out = tmp_path / "sw"
+    code = main(["sweep", str(path), "--out", str(out), "--vlm-backend", "openai", "--vlm-base-url",
+                 "http://127.0.0.1:9/v1", "--vlm-timeout", "0.5", "--vlm-max-failures", "2", "--workers", "1",
+                 "--no-progress"])
+    capsys.readouterr()
+    assert code == 0
+    stored = {p.name: json.loads(p.read_text()) for p in (out / "cells").glob("*.json")}
+    vlm_cell = next(v for k, v in stored.items() if "dynamic-vlm" in k)
+    plain = next(v for k, v in stored.items() if "dynamic-knn" in k)
+    assert vlm_cell["cell"]["vlm"] == "openai:gpt-4o" and plain["cell"]["vlm"] is None
+    assert vlm_cell["summary"]["vlm_breaker_open_episodes"] == 2
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--vlm-timeout", "5"], "apply to --vlm-backend openai"),
+    (["--vlm-backend", "openai", "--vlm-timeout", "nan"], "--vlm-timeout"),
+    (["--vlm-backend", "openai", "--vlm-cache-only"], "--vlm-cache-only needs --vlm-cache"),
+])
+def test_sweep_refuses_bad_vlm_options_before_any_cell(capsys, tmp_path, extra, message):
+    from safemanip.cli import main
+
+    out = tmp_path / "sw"
+    code = main(["sweep", "table2", "--episodes", "1", "--out", str(out), "--no-progress", *extra])
+    err = capsys.readouterr().err
+    assert code == 2 and message in err and not out.exists()
+
+
+def test_sweep_refuses_vlm_options_when_no_cell_queries_the_backend(capsys, tmp_path):
+    from safemanip.cli import main
+
+    code = main(["sweep", "fig5", "--out", str(tmp_path / "sw"), "--vlm-backend", "openai", "--no-progress"])
+    assert code == 2 and "no cell that queries the semantic backend" in capsys.readouterr().err

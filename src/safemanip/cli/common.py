@@ -60,6 +60,20 @@ def add_compute_backend(p: argparse.ArgumentParser) -> None:
     p.add_argument("--address", help="Ray cluster address for --backend ray (default: start a local Ray instance)")
 
 
+def add_vlm_options(p) -> None:
+    """The semantic-backend options of eval and sweep (``VLM_FIELDS`` of the evaluation harness)."""
+    from safemanip.semantics.base import VLM_BACKENDS
+
+    vlm = p.add_argument_group("semantic backend (for --selector dynamic-vlm / --constraints vlm)")
+    vlm.add_argument("--vlm-backend", choices=VLM_BACKENDS,
+                     help="semantic: offline embedding model (default); openai: any OpenAI-compatible server")
+    vlm.add_argument("--vlm-model", help="model name for --vlm-backend openai (default gpt-4o)")
+    vlm.add_argument("--vlm-base-url", help="server URL for --vlm-backend openai (default: OpenAI)")
+    vlm.add_argument("--vlm-cache", metavar="DIR", help="answer cache folder for --vlm-backend openai")
+    vlm.add_argument("--vlm-cache-only", action="store_true", help="never call the server; a cache miss falls back")
+    add_vlm_budget(vlm)
+
+
 def add_vlm_budget(p) -> None:
     """--vlm-timeout and the time budgets of the openai backend (eval and sweep)."""
     p.add_argument("--vlm-timeout", type=float_in(0, 600, lo_open=True), metavar="S",

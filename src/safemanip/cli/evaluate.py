@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from safemanip.cli.common import CliError, add_compute_backend, add_vlm_budget, int_in
+from safemanip.cli.common import CliError, add_compute_backend, add_vlm_options, int_in
 
 EVAL_EXAMPLES = """examples:
   safemanip eval --policy rarl-k2-conservative --episodes 500 --seed 7 --judge conservative
@@ -60,8 +60,11 @@ def _cmd_sweep(args) -> int:
         for name in available():
             print(name)
         return 0
+    from safemanip.evaluation.harness import VLM_FIELDS
+
+    vlm = {f: getattr(args, f) for f in VLM_FIELDS if getattr(args, f)}
     status = run_sweep(args.name, episodes=args.episodes, out=args.out, workers=args.workers, backend=args.backend,
-                       address=args.address, render_only=args.render_only, progress=not args.no_progress)
+                       address=args.address, render_only=args.render_only, progress=not args.no_progress, vlm=vlm)
     if status.get("interrupted"):
         return 128 + status["interrupted"]
     if not args.render_only and status["skipped"] and not (status["ran"] or status["done"]):
@@ -79,7 +82,6 @@ def register(subparsers) -> None:
     from safemanip.evaluation.harness import SEED_STRIDE
     from safemanip.evaluation.registry import CONSTRAINT_SELECTORS, OBJECT_SELECTORS
     from safemanip.scene.config import MAX_OBJECTS
-    from safemanip.semantics.base import VLM_BACKENDS
 
     ev = subparsers.add_parser(
         "eval", help="roll a policy out with object/constraint selection; success and failures with 95%% intervals",
@@ -106,14 +108,7 @@ def register(subparsers) -> None:
     ev.add_argument("--embodiment", choices=["panda", "hand"],
                     help="robot to evaluate on (default: the policy's own; another one is refused)")
     ev.add_argument("--chunk-size", type=int_in(1, 100_000), help="episodes per worker task (default: about 8 tasks per worker)")
-    vlm = ev.add_argument_group("semantic backend (for --selector dynamic-vlm / --constraints vlm)")
-    vlm.add_argument("--vlm-backend", choices=VLM_BACKENDS,
-                     help="semantic: offline embedding model (default); openai: any OpenAI-compatible server")
-    vlm.add_argument("--vlm-model", help="model name for --vlm-backend openai (default gpt-4o)")
-    vlm.add_argument("--vlm-base-url", help="server URL for --vlm-backend openai (default: OpenAI)")
-    vlm.add_argument("--vlm-cache", metavar="DIR", help="answer cache folder for --vlm-backend openai")
-    vlm.add_argument("--vlm-cache-only", action="store_true", help="never call the server; a cache miss falls back")
-    add_vlm_budget(vlm)
+    add_vlm_options(ev)
     _add_run_options(ev)
     ev.add_argument("--out", help="folder for episodes.csv and summary.json")
     ev.add_argument("--json", action="store_true", help="also print the JSON summary")
@@ -126,5 +121,6 @@ def register(subparsers) -> None:
     sw.add_argument("--out", help="results folder (default: results/sweeps/NAME)")
     sw.add_argument("--render-only", action="store_true", help="only redraw figure and table from stored results")
     sw.add_argument("--list", action="store_true", help="list the shipped sweeps")
+    add_vlm_options(sw)
     _add_run_options(sw)
     sw.set_defaults(func=_cmd_sweep)

@@ -130,6 +130,45 @@ def _policy_problems(req: EvalRequest, problems: list[str]):
     return actor.arrays(), meta
 
 
+VLM_FIELDS = ("vlm_backend", "vlm_model", "vlm_base_url", "vlm_cache", "vlm_cache_only", "vlm_timeout",
+              "vlm_episode_budget", "vlm_run_budget", "vlm_max_failures")
+"""The EvalRequest fields of the semantic backend (eval and sweep take the same flags)."""
+
+
+def vlm_option_problems(req, uses_vlm: bool) -> list[str]:
+    """What is wrong with the semantic-backend options of ``req`` (any object with the ``VLM_FIELDS``), for a run
+    that does (``uses_vlm``) or does not query the backend. One set of rules for eval and sweep."""
+    problems: list[str] = []
+    for flag, value, lo, hi in (("--vlm-timeout", req.vlm_timeout, 0, 600),
+                                ("--vlm-episode-budget", req.vlm_episode_budget, 0, 86_400),
+                                ("--vlm-run-budget", req.vlm_run_budget, 0, 30 * 86_400)):
+        if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and lo < value <= hi):
+            problems.append(f"{flag} must be a number of seconds in ({lo}, {hi}], got {value!r}")
+    if req.vlm_max_failures is not None and not 1 <= req.vlm_max_failures <= 10_000:
+        problems.append(f"--vlm-max-failures must be 1..10000, got {req.vlm_max_failures}")
+
+    vlm_given = [f for f, v in (("--vlm-backend", req.vlm_backend), ("--vlm-model", req.vlm_model),
+                                 ("--vlm-base-url", req.vlm_base_url), ("--vlm-cache", req.vlm_cache),
+                                 ("--vlm-cache-only", req.vlm_cache_only), ("--vlm-timeout", req.vlm_timeout),
+                                 ("--vlm-episode-budget", req.vlm_episode_budget),
+                                 ("--vlm-run-budget", req.vlm_run_budget),
+                                 ("--vlm-max-failures", req.vlm_max_failures)) if v]
+    if vlm_given and not uses_vlm:
+        problems.append(f"{', '.join(vlm_given)} only appl{'ies' if len(vlm_given) == 1 else 'y'} to "
+                        f"--selector dynamic-vlm or --constraints vlm")
+    vlm_backend = req.vlm_backend or "semantic"
+    if vlm_backend not in VLM_BACKENDS:
+        problems.append(f"--vlm-backend must be one of {VLM_BACKENDS}, got {vlm_backend!r}")
+    elif uses_vlm and vlm_backend == "semantic" and (req.vlm_model or req.vlm_base_url or req.vlm_cache
+                                                     or req.vlm_cache_only or req.vlm_timeout or req.vlm_episode_budget
+                                                     or req.vlm_run_budget or req.vlm_max_failures):
+        problems.append("--vlm-model/--vlm-base-url/--vlm-cache/--vlm-cache-only and the --vlm-timeout/budget/"
+                        "max-failures limits apply to --vlm-backend openai; the semantic backend is offline")
+    if req.vlm_cache_only and not req.vlm_cache:
+        problems.append("--vlm-cache-only needs --vlm-cache DIR (the folder of stored answers)")
+    return problems
+
+
 def prepare(req: EvalRequest) -> Prepared:
     """Validate the whole request (no episode runs before this passes) and build the worker spec."""
     from safemanip.scene.config import MAX_OBJECTS, SceneConfig, parse_semantics
@@ -166,34 +205,8 @@ def prepare(req: EvalRequest) -> Prepared:
         problems.append(f"--max-episode-steps must be 1..{MAX_EPISODE_STEPS}, got {req.max_episode_steps}")
     if req.out is not None:
         problems += check_output_dir(req.out)
-    for flag, value, lo, hi in (("--vlm-timeout", req.vlm_timeout, 0, 600),
-                                ("--vlm-episode-budget", req.vlm_episode_budget, 0, 86_400),
-                                ("--vlm-run-budget", req.vlm_run_budget, 0, 30 * 86_400)):
-        if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and lo < value <= hi):
-            problems.append(f"{flag} must be a number of seconds in ({lo}, {hi}], got {value!r}")
-    if req.vlm_max_failures is not None and not 1 <= req.vlm_max_failures <= 10_000:
-        problems.append(f"--vlm-max-failures must be 1..10000, got {req.vlm_max_failures}")
-
     uses_vlm = req.selector in USES_VLM or (req.constraints or "") in USES_VLM
-    vlm_given = [f for f, v in (("--vlm-backend", req.vlm_backend), ("--vlm-model", req.vlm_model),
-                                 ("--vlm-base-url", req.vlm_base_url), ("--vlm-cache", req.vlm_cache),
-                                 ("--vlm-cache-only", req.vlm_cache_only), ("--vlm-timeout", req.vlm_timeout),
-                                 ("--vlm-episode-budget", req.vlm_episode_budget),
-                                 ("--vlm-run-budget", req.vlm_run_budget),
-                                 ("--vlm-max-failures", req.vlm_max_failures)) if v]
-    if vlm_given and not uses_vlm:
-        problems.append(f"{', '.join(vlm_given)} only appl{'ies' if len(vlm_given) == 1 else 'y'} to "
-                        f"--selector dynamic-vlm or --constraints vlm")
-    vlm_backend = req.vlm_backend or "semantic"
-    if vlm_backend not in VLM_BACKENDS:
-        problems.append(f"--vlm-backend must be one of {VLM_BACKENDS}, got {vlm_backend!r}")
-    elif uses_vlm and vlm_backend == "semantic" and (req.vlm_model or req.vlm_base_url or req.vlm_cache
-                                                     or req.vlm_cache_only or req.vlm_timeout or req.vlm_episode_budget
-                                                     or req.vlm_run_budget or req.vlm_max_failures):
-        problems.append("--vlm-model/--vlm-base-url/--vlm-cache/--vlm-cache-only and the --vlm-timeout/budget/"
-                        "max-failures limits apply to --vlm-backend openai; the semantic backend is offline")
-    if req.vlm_cache_only and not req.vlm_cache:
-        problems.append("--vlm-cache-only needs --vlm-cache DIR (the folder of stored answers)")
+    problems += vlm_option_problems(req, uses_vlm)
 
     classes = None
     if req.semantics:
@@ -246,7 +259,7 @@ def prepare(req: EvalRequest) -> Prepared:
                   "near_path_fraction": env_train.get("near_path_fraction", 0.5),
                   "max_episode_steps": req.max_episode_steps or env_train.get("max_episode_steps", 300),
                   "embodiment": env_train["embodiment"]}
-    options = SelectorOptions(interval=req.interval, vlm_backend=vlm_backend, vlm_model=req.vlm_model,
+    options = SelectorOptions(interval=req.interval, vlm_backend=req.vlm_backend or "semantic", vlm_model=req.vlm_model,
                               vlm_base_url=req.vlm_base_url, vlm_cache=req.vlm_cache,
                               vlm_cache_only=req.vlm_cache_only, vlm_timeout=req.vlm_timeout,
                               vlm_episode_budget=req.vlm_episode_budget, vlm_run_budget=req.vlm_run_budget,

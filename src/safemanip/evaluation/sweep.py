@@ -150,7 +150,18 @@ def _validate(cfg: dict, where: str) -> None:
         raise SweepError(f"sweep {where}: " + "; ".join(problems))
 
 
-def cells_of(cfg: dict, episodes: int | None = None) -> list[Cell]:
+def vlm_identity(vlm: dict | None) -> str:
+    """What a cell that queries the semantic backend records as ``Cell.vlm``: the offline classifier's example
+    set, or the openai backend's model, so results of one backend never count as done for another."""
+    from safemanip.semantics.semantic_backend import DEFAULT_EXAMPLES
+
+    vlm = vlm or {}
+    if (vlm.get("vlm_backend") or "semantic") == "openai":
+        return f"openai:{vlm.get('vlm_model') or 'gpt-4o'}"
+    return f"semantic:{DEFAULT_EXAMPLES}"
+
+
+def cells_of(cfg: dict, episodes: int | None = None, vlm: dict | None = None) -> list[Cell]:
     """The grid's applicable cells, in a stable order.
 
     Left out: k > N (the policy has more slots than objects) and semantics that do not describe N
@@ -159,7 +170,6 @@ def cells_of(cfg: dict, episodes: int | None = None) -> list[Cell]:
     """
     from safemanip.evaluation.registry import USES_VLM
     from safemanip.scene.config import parse_semantics
-    from safemanip.semantics.semantic_backend import DEFAULT_EXAMPLES
 
     episodes = int(episodes or cfg["episodes"])
     pairs = cfg.get("pairs") or [(s, c) for s in cfg["selectors"] for c in cfg.get("constraints", ["conservative"])]
@@ -181,7 +191,7 @@ def cells_of(cfg: dict, episodes: int | None = None) -> list[Cell]:
                     uses_vlm = selector in USES_VLM or constraints in USES_VLM
                     cell = Cell(policy, m["algorithm"], k, m["constraints"], int(n), sem, selector, constraints,
                                 cfg["judge"], episodes, int(cfg.get("seed", 0)),
-                                f"semantic:{DEFAULT_EXAMPLES}" if uses_vlm else None)
+                                vlm_identity(vlm) if uses_vlm else None)
                     out.setdefault(cell.id, cell)
     return list(out.values())
 
@@ -199,14 +209,32 @@ def _done(path: Path, cell: Cell) -> bool:
 
 def run_sweep(name: str, *, episodes: int | None = None, out: str | None = None, workers: int = 2,
               backend: str = "local", address: str | None = None, render_only: bool = False,
-              progress: bool = True, log=print) -> dict:
+              progress: bool = True, log=print, vlm: dict | None = None) -> dict:
     """Run the cells not done yet, then render. Returns {"ran", "done", "skipped", "failed", "interrupted",
     "figure", "table"}; "interrupted" is the signal number when SIGINT/SIGTERM stopped the run (the cells
     finished before it are kept, the one in progress is redone next time).
 
-    The output folder is checked and locked before any cell runs."""
+    ``vlm``: the semantic-backend options (``VLM_FIELDS`` of the harness: backend, model, cache, timeout,
+    budgets, breaker), applied to the cells that query the backend. The output folder and these options are
+    checked, and the folder locked, before any cell runs."""
+    from types import SimpleNamespace
+
+    from safemanip.evaluation.harness import VLM_FIELDS, vlm_option_problems
+
     cfg = load_config(name)
     root = Path(out) if out else DEFAULT_ROOT / cfg["name"]
+    vlm = {k: v for k, v in (vlm or {}).items() if v}
+    unknown = sorted(set(vlm) - set(VLM_FIELDS))
+    if unknown:
+        raise SweepError(f"unknown semantic-backend option(s) {unknown}; known: {', '.join(VLM_FIELDS)}")
+    cells = cells_of(cfg, episodes, vlm)
+    if vlm and not render_only:
+        if not any(c.vlm for c in cells):
+            raise SweepError(f"sweep {cfg['name']} has no cell that queries the semantic backend (selector "
+                             f"dynamic-vlm or constraints vlm): drop the --vlm-* options")
+        problems = vlm_option_problems(SimpleNamespace(**{f: vlm.get(f) for f in VLM_FIELDS}), uses_vlm=True)
+        if problems:
+            raise SweepError("; ".join(problems))
     problems = check_output_dir(root)
     if problems:
         raise SweepError(problems[0])
@@ -215,7 +243,7 @@ def run_sweep(name: str, *, episodes: int | None = None, out: str | None = None,
         if not render_only:
             try:
                 with stop_on_signals(), _ray_session(backend, address, workers):
-                    _run_cells(cfg, cells_of(cfg, episodes), root, status, workers, backend, address, progress, log)
+                    _run_cells(cfg, cells, root, status, workers, backend, address, progress, log, vlm)
             except Interrupted as stop:
                 status["interrupted"] = stop.signum
             if status["interrupted"]:
@@ -251,7 +279,7 @@ def _ray_session(backend: str, address: str | None, workers: int):
         ray.shutdown()
 
 
-def _run_cells(cfg, cells, root, status, workers, backend, address, progress, log) -> None:
+def _run_cells(cfg, cells, root, status, workers, backend, address, progress, log, vlm: dict) -> None:
     from safemanip.evaluation.harness import EvalRequest, evaluate
     from safemanip.rl.checkpoint import resolve_policy
 
@@ -274,7 +302,8 @@ def _run_cells(cfg, cells, root, status, workers, backend, address, progress, lo
         req = EvalRequest(policy=str(policy), n_objects=cell.n_objects, semantics=cell.semantics,
                           selector=cell.selector, constraints=cell.constraints, judge=cell.judge,
                           episodes=cell.episodes, seed=cell.seed, workers=workers, backend=backend,
-                          address=address, out=str(cells_dir / cell.id), progress=progress)
+                          address=address, out=str(cells_dir / cell.id), progress=progress,
+                          **(vlm if cell.vlm else {}))
         try:
             _check_policy_name(cell)
             report = evaluate(req)
