@@ -113,6 +113,28 @@ def test_kill_9_of_eval_leaves_no_process(tmp_path):
     assert not (tmp_path / "ev" / "summary.json").exists()
 
 
+def test_reaper_kills_what_a_killed_process_left_behind(tmp_path):
+    """util/reaper.py: a grandchild that would outlive its parent (as Ray's agents do) is killed with it."""
+    script = ("import subprocess, sys, time\n"
+              "from safemanip.util.reaper import start_reaper\n"
+              "start_reaper()\n"
+              "subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(600)'])\n"
+              "time.sleep(600)\n")
+    proc = subprocess.Popen([sys.executable, "-c", script], env=ENV, start_new_session=True)
+    workers = wait_for_workers(proc, 2, timeout=30.0)  # the reaper and the sleeper
+    kill_and_check_orphans(proc, workers)
+
+
+@pytest.mark.slow
+def test_kill_9_of_a_ray_eval_leaves_no_process(tmp_path):
+    """With --backend ray the local Ray instance (GCS, raylet, its workers) goes too."""
+    pytest.importorskip("ray")
+    proc = start(["eval", "--policy", "rarl-k2-conservative", "--episodes", "400", "--workers", "2", "--backend", "ray",
+                  "--no-progress", "--out", tmp_path / "ev"], tmp_path, "eval.log")
+    workers = wait_for_workers(proc, 4, timeout=120.0)  # at least GCS, raylet and the two rollout workers
+    kill_and_check_orphans(proc, workers)
+
+
 @pytest.mark.slow
 def test_kill_9_of_sweep_leaves_no_process(tmp_path):
     proc = start(["sweep", _sweep_config(tmp_path, 400), "--out", tmp_path / "sw", "--workers", "2", "--no-progress"], tmp_path, "sweep.log")

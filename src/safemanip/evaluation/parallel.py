@@ -202,11 +202,9 @@ def run_ray(spec: EvalSpec, seeds: list[int], workers: int = 2, address: str | N
         raise RuntimeError("--backend ray needs Ray: pip install 'ray[default]'") from err
     started = False
     if not ray.is_initialized():
-        kwargs = {"include_dashboard": False, "log_to_driver": False}
-        if address:
-            ray.init(address=address, **kwargs)
-        else:
-            ray.init(num_cpus=workers, **kwargs)
+        from safemanip.util.procs import init_ray
+
+        init_ray(address, workers)
         started = True
     records: list[dict] = []
     try:

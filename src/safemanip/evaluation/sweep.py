@@ -268,11 +268,9 @@ def _ray_session(backend: str, address: str | None, workers: int):
     if ray.is_initialized():
         yield
         return
-    kwargs = {"include_dashboard": False, "log_to_driver": False}
-    if address:
-        ray.init(address=address, **kwargs)
-    else:
-        ray.init(num_cpus=workers, **kwargs)
+    from safemanip.util.procs import init_ray
+
+    init_ray(address, workers)
     try:
         yield
     finally:

@@ -208,7 +208,9 @@ class RayPool:
         build = env_builder(env_kwargs)  # resolved here, before Ray starts
         self.owns_ray = not ray.is_initialized()
         if self.owns_ray:
-            ray.init(address=cfg.address, include_dashboard=False, log_to_driver=False)
+            from safemanip.util.procs import init_ray
+
+            init_ray(cfg.address, None)
         self.ray = ray
         self.cfg = cfg
         remote = ray.remote(num_cpus=1)(RolloutWorker)

@@ -85,3 +85,26 @@ def stop_on_signals(raise_exc: bool = True, signals=(signal.SIGINT, signal.SIGTE
     finally:
         for s, h in old.items():
             signal.signal(s, h)
+
+
+_REAPER = None
+
+
+def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
+    """``ray.init`` for the cluster at ``address``, or a local instance that does not outlive this process.
+
+    A local instance's own processes (GCS, raylet, its workers and agents) are descendants of this one; a
+    watchdog (``util/reaper.py``) kills any of them still running once this process is gone, even after
+    ``kill -9`` (Ray's agents alone would linger for about a minute)."""
+    global _REAPER
+    import ray
+
+    kwargs = {"include_dashboard": False, "log_to_driver": False}
+    if address:
+        ray.init(address=address, **kwargs)
+        return
+    if _REAPER is None or _REAPER.poll() is not None:  # first: a kill during ray.init leaves nothing either
+        from safemanip.util.reaper import start_reaper
+
+        _REAPER = start_reaper()
+    ray.init(num_cpus=num_cpus, **kwargs)
