@@ -26,6 +26,8 @@ SWEEP_EXAMPLES = """examples:
   safemanip sweep fig6 --episodes 200       a quicker pass (cells are redone when the count changes)
   safemanip sweep fig5 --render-only        redraw figure and table from the stored cell results
   safemanip sweep --list                    the shipped sweeps
+  safemanip sweep table2 --vlm-backend openai --vlm-cache vlm_cache --vlm-timeout 20
+                                            the VLM cells against a server, with the eval's limits
 """
 
 
