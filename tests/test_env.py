@@ -666,3 +666,31 @@ def test_check_env_with_rendering(render_env):
     env = gym.make("safemanip/SlideOut-v0", n_objects=2, render_mode="rgb_array")
     check_env(env.unwrapped)
     env.close()
+
+
+def test_action_curve_keeps_direction_and_full_speed_and_refines_small_actions():
+    from safemanip.control.diff_ik import shape_action
+
+    a = np.array([0.3, -0.4, 0.0])  # |a| = 0.5
+    np.testing.assert_allclose(shape_action(a, 1.0), a)
+    np.testing.assert_allclose(shape_action(a, 2.0), a * 0.5)  # |a|^2 = 0.25 along a
+    big = np.array([3.0, 4.0, 0.0])
+    np.testing.assert_allclose(np.linalg.norm(shape_action(big, 2.0)), 1.0)  # capped by norm, full speed
+    np.testing.assert_array_equal(shape_action(np.zeros(3), 2.0), np.zeros(3))
+    # placing (< 5 cm/s of 1.7 m/s) takes |a| < 0.17 with the curve, < 0.03 without
+    assert np.linalg.norm(shape_action(np.array([0.16, 0, 0]), 2.0)) * 1.7 < 0.05
+    assert np.linalg.norm(shape_action(np.array([0.16, 0, 0]), 1.0)) * 1.7 > 0.05
+
+
+def test_the_env_commands_speeds_through_its_action_curve():
+    from safemanip.env.slide_out import SlideOutEnv
+
+    speeds = {}
+    for curve in (1.0, 2.0):
+        env = SlideOutEnv(n_objects=0, action_curve=curve)
+        env.reset(seed=0)
+        env.step(np.array([0.3, 0.0, 0.0]))  # within one step's 0.65 m/s of acceleration
+        speeds[curve] = float(np.linalg.norm(env._command))
+    assert speeds[1.0] == pytest.approx(0.3 * 1.7) and speeds[2.0] == pytest.approx(0.09 * 1.7)
+    with pytest.raises(ValueError, match="action_curve"):
+        SlideOutEnv(n_objects=0, action_curve=0.5)

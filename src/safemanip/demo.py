@@ -60,18 +60,20 @@ def run_demo(out_dir: str | Path = "demo_output", controller: str = "policy", po
         raise ValueError(f"--fps must be one of {VIDEO_FPS} frames per simulated second, got {fps!r}")
     if not (isinstance(slowmo, (int, float)) and 1.0 <= slowmo <= 100.0):
         raise ValueError(f"--slowmo must be a number from 1 (real time) to 100, got {slowmo!r}")
+    action_curve = 1.0  # the scripted controller commands speeds linearly
     if controller == "policy":  # the policy file is checked before anything is built or written
-        from safemanip.rl.checkpoint import embodiment_problem, load_policy, policy_embodiment
+        from safemanip.rl.checkpoint import embodiment_problem, load_policy, policy_action_curve, policy_embodiment
 
         actor, meta = load_policy(policy)
         problem = embodiment_problem(meta, embodiment, f"--policy {policy}")
         if problem:
             raise ValueError(problem)
         embodiment = policy_embodiment(meta)
+        action_curve = policy_action_curve(meta)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     env = SlideOutEnv(n_objects=n_objects, render_mode="rgb_array" if video else None, slot_order="nearest",
-                      embodiment=embodiment or "panda")
+                      embodiment=embodiment or "panda", action_curve=action_curve)
     frames: list[np.ndarray] = []
     trace: list[dict] = []
     selections: list[list[str]] = []

@@ -27,6 +27,16 @@ def limit_norm(vector: np.ndarray, max_norm: float) -> np.ndarray:
     return vector
 
 
+def shape_action(action: np.ndarray, exponent: float) -> np.ndarray:
+    """An action in the unit ball -> a fraction of the top speed: the action's direction, with its norm (capped
+    at 1) raised to ``exponent``. 1 is linear; 2 gives the policy a finer hand near rest (5 cm/s of 1.7 m/s is
+    |a| < 0.17 instead of |a| < 0.03) and still reaches full speed at |a| = 1."""
+    n = math.sqrt(float(action @ action))
+    if n == 0.0:
+        return action * 0.0
+    return action * (min(n, 1.0) ** exponent / n)
+
+
 def limit_ee_velocity(requested: np.ndarray, previous: np.ndarray, dt: float,
                       max_speed: float = MAX_EE_SPEED, max_accel: float = MAX_EE_ACCEL) -> np.ndarray:
     """The Cartesian velocity to command for the next control step.

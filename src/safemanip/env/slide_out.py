@@ -22,7 +22,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from safemanip.control.diff_ik import MAX_EE_ACCEL, MAX_EE_SPEED, limit_ee_velocity, limit_norm
+from safemanip.control.diff_ik import MAX_EE_ACCEL, MAX_EE_SPEED, limit_ee_velocity, shape_action
 from safemanip.env import margins as M
 from safemanip.env.observation import SLOT_DIM, SceneState, encode_constraints, observation_space
 from safemanip.scene.builder import CONTROL_DT, SUBSTEPS, SceneIndex, build_model
@@ -45,7 +45,8 @@ class SlideOutEnv(gym.Env):
                  constraints: str | Sequence[str] = "ground_truth", near_path_fraction: float = 0.5,
                  render_mode: str | None = None, max_episode_steps: int = 300,
                  thresholds: M.Thresholds = M.DEFAULT_THRESHOLDS, sleep: bool = True, slot_order: str = "index",
-                 render_size: tuple[int, int] = (480, 640), embodiment: str = "panda", visual: bool | None = None):
+                 render_size: tuple[int, int] = (480, 640), embodiment: str = "panda", visual: bool | None = None,
+                 action_curve: float = 1.0):
         if isinstance(classes, str):
             from safemanip.scene.config import parse_semantics
             classes = parse_semantics(classes)
@@ -70,6 +71,9 @@ class SlideOutEnv(gym.Env):
         if embodiment not in EMBODIMENTS:
             raise ValueError(f"embodiment must be one of {sorted(EMBODIMENTS)}, got {embodiment!r}")
         self.embodiment_name = embodiment
+        if not (isinstance(action_curve, (int, float)) and 1.0 <= action_curve <= 4.0):
+            raise ValueError(f"action_curve must be a number from 1 (linear) to 4, got {action_curve!r}")
+        self.action_curve = float(action_curve)
         self.constraint_mode = constraints
         self.render_mode = render_mode
         self.max_episode_steps = int(max_episode_steps)
@@ -186,7 +190,8 @@ class SlideOutEnv(gym.Env):
         if not (math.isfinite(request[0]) and math.isfinite(request[1]) and math.isfinite(request[2])):
             raise ValueError(f"action must be finite, got {request.tolist()}: a NaN action usually means the "
                              "policy's weights or its observation hold NaN")
-        request = limit_norm(request, 1.0) * self.max_speed  # by norm, not per axis: no faster diagonals
+        # by norm, not per axis (no faster diagonals), through the action curve (``shape_action``)
+        request = shape_action(request, self.action_curve) * self.max_speed
         z, (z_low, z_high) = self._values[2], self._lift_band
         # the lift band; coming down, the box lands softly (an exponential approach over ~4 steps, not a drop)
         request[2] = min(max(request[2], (z_low - z) / (4 * CONTROL_DT)), (z_high - z) / CONTROL_DT)

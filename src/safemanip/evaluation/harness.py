@@ -254,11 +254,13 @@ def prepare(req: EvalRequest) -> Prepared:
     if problems:
         raise EvalConfigError("cannot run this evaluation:\n  - " + "\n  - ".join(problems))
 
+    from safemanip.rl.checkpoint import policy_action_curve
+
     env_train = meta["env_kwargs"]
     env_kwargs = {"n_objects": n, "classes": classes, "constraints": JUDGES[req.judge],
                   "near_path_fraction": env_train.get("near_path_fraction", 0.5),
                   "max_episode_steps": req.max_episode_steps or env_train.get("max_episode_steps", 300),
-                  "embodiment": env_train["embodiment"]}
+                  "embodiment": env_train["embodiment"], "action_curve": policy_action_curve(meta)}
     options = SelectorOptions(interval=req.interval, vlm_backend=req.vlm_backend or "semantic", vlm_model=req.vlm_model,
                               vlm_base_url=req.vlm_base_url, vlm_cache=req.vlm_cache,
                               vlm_cache_only=req.vlm_cache_only, vlm_timeout=req.vlm_timeout,

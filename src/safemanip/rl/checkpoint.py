@@ -325,5 +325,10 @@ def policy_embodiment(meta: dict) -> str:
     return meta["env_kwargs"]["embodiment"]
 
 
+def policy_action_curve(meta: dict) -> float:
+    """The action curve a (checked) policy was trained with; policies from before the curve existed: 1 (linear)."""
+    return float(meta["env_kwargs"].get("action_curve", 1.0))
+
+
 def _refuse_constant(name: str):
     raise ValueError(f"{name} is not allowed")
