@@ -147,21 +147,15 @@ def vlm_option_problems(req, uses_vlm: bool) -> list[str]:
     if req.vlm_max_failures is not None and not 1 <= req.vlm_max_failures <= 10_000:
         problems.append(f"--vlm-max-failures must be 1..10000, got {req.vlm_max_failures}")
 
-    vlm_given = [f for f, v in (("--vlm-backend", req.vlm_backend), ("--vlm-model", req.vlm_model),
-                                 ("--vlm-base-url", req.vlm_base_url), ("--vlm-cache", req.vlm_cache),
-                                 ("--vlm-cache-only", req.vlm_cache_only), ("--vlm-timeout", req.vlm_timeout),
-                                 ("--vlm-episode-budget", req.vlm_episode_budget),
-                                 ("--vlm-run-budget", req.vlm_run_budget),
-                                 ("--vlm-max-failures", req.vlm_max_failures)) if v]
-    if vlm_given and not uses_vlm:
-        problems.append(f"{', '.join(vlm_given)} only appl{'ies' if len(vlm_given) == 1 else 'y'} to "
+    given = [f for f in VLM_FIELDS if getattr(req, f)]
+    if given and not uses_vlm:
+        flags = ", ".join("--" + f.replace("_", "-") for f in given)
+        problems.append(f"{flags} only appl{'ies' if len(given) == 1 else 'y'} to "
                         f"--selector dynamic-vlm or --constraints vlm")
     vlm_backend = req.vlm_backend or "semantic"
     if vlm_backend not in VLM_BACKENDS:
         problems.append(f"--vlm-backend must be one of {VLM_BACKENDS}, got {vlm_backend!r}")
-    elif uses_vlm and vlm_backend == "semantic" and (req.vlm_model or req.vlm_base_url or req.vlm_cache
-                                                     or req.vlm_cache_only or req.vlm_timeout or req.vlm_episode_budget
-                                                     or req.vlm_run_budget or req.vlm_max_failures):
+    elif uses_vlm and vlm_backend == "semantic" and any(f != "vlm_backend" for f in given):
         problems.append("--vlm-model/--vlm-base-url/--vlm-cache/--vlm-cache-only and the --vlm-timeout/budget/"
                         "max-failures limits apply to --vlm-backend openai; the semantic backend is offline")
     if req.vlm_cache_only and not req.vlm_cache:

@@ -65,7 +65,10 @@ def classify_constraints(backend_name: str | Backend, names: Sequence[str], *, t
 PAPER_OBJECTS = ("toy squirrel", "toy sheep", "toy android", "red mug", "blue mug", "porcelain mug", "supplement bottle",
                  "plant pot")
 """The eight objects of the paper's experiments (its Tables III and IV are over these)."""
-OBJECT_SETS = ("catalog", "paper", "heldout", "heldout-v2", "heldout-v3")
+HELDOUT_FILES = {"heldout": "heldout_names_v1.json", "heldout-v2": "heldout_names_v2.json",
+                 "heldout-v3": "heldout_names_v3.json"}
+"""The shipped held-out name lists (``semantics/data/``), by object-set name."""
+OBJECT_SETS = ("catalog", "paper", *HELDOUT_FILES)
 
 
 def object_set(which: str) -> dict[str, str]:
@@ -79,10 +82,9 @@ def object_set(which: str) -> dict[str, str]:
     if which == "paper":
         catalog = load_catalog()
         return {n: catalog[n].constraint for n in PAPER_OBJECTS}
-    if which in ("heldout", "heldout-v2", "heldout-v3"):
-        filename = {"heldout": "heldout_names_v1.json", "heldout-v2": "heldout_names_v2.json",
-                    "heldout-v3": "heldout_names_v3.json"}[which]
-        raw = json.loads(resources.files("safemanip.semantics").joinpath("data", filename).read_text(encoding="utf-8"))
+    if which in HELDOUT_FILES:
+        raw = json.loads(resources.files("safemanip.semantics").joinpath("data", HELDOUT_FILES[which])
+                         .read_text(encoding="utf-8"))
         return {n: CONSTRAINT_OF_CLASS[c] for c in SEMANTIC_CLASSES for n in sorted(raw["classes"][c])}
     raise ValueError(f"unknown object set {which!r}; choose one of {OBJECT_SETS}")
 
