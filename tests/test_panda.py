@@ -51,6 +51,20 @@ def test_the_corrections_are_applied():
     np.testing.assert_allclose(data.xmat[link7].reshape(3, 3)[:, 2], [0, 0, -1], atol=1e-3)
 
 
+def test_each_load_is_an_independent_copy_of_the_parsed_model():
+    """The XML is parsed once and copies are handed out: editing or attaching one must not leak into the
+    next scene, and a copy must compile to the same model as the first one did."""
+    first = load_panda_spec(visual=False, gap=0.01)
+    reference = first.compile()
+    first.joint(JOINTS[0]).damping = [7.0, 0.0, 0.0]
+    first.worldbody.add_body(name="stray").add_geom(size=[0.1, 0, 0])
+    again = load_panda_spec(visual=False, gap=0.01).compile()
+    assert again.joint(JOINTS[0]).damping[0] == pytest.approx(1.0)
+    assert (again.nbody, again.ngeom, again.nmesh) == (reference.nbody, reference.ngeom, reference.nmesh)
+    np.testing.assert_array_equal(again.geom_size, reference.geom_size)
+    np.testing.assert_array_equal(again.body_mass, reference.body_mass)
+
+
 def test_servos_are_torque_limited_like_a_panda():
     env = SlideOutEnv(n_objects=0)
     env.reset(seed=0)
