@@ -73,9 +73,9 @@ def test_check_env_passes_on_the_unwrapped_env():
     env.close()
 
 
-@pytest.mark.parametrize("n", [0, 1, 8])
-def test_check_env_passes_for_any_object_count(n):
-    check_env(SlideOutEnv(n_objects=n), skip_render_check=True)
+@pytest.mark.parametrize("n,object_size", [(0, False), (1, False), (8, False), (3, True)])
+def test_check_env_passes_for_any_object_count(n, object_size):
+    check_env(SlideOutEnv(n_objects=n, object_size=object_size), skip_render_check=True)
 
 
 def test_spaces():
@@ -126,19 +126,19 @@ def test_observation_layout_matches_the_simulation():
     assert info["constraints"] == ("soft_contact", "no_contact", "any_contact")
 
 
-@pytest.mark.parametrize("slot_order", ["index", "nearest"])
-def test_fast_observation_path_equals_the_public_builder(slot_order):
+@pytest.mark.parametrize("slot_order,object_size", [("index", False), ("nearest", False), ("nearest", True)])
+def test_fast_observation_path_equals_the_public_builder(slot_order, object_size):
     """The env gathers its observation in one pass; it must equal ``build_observation`` on the same state,
     and the margins it reports must equal the pure functions' on that state, throughout a rollout."""
     env = SlideOutEnv(n_objects=4, constraints=("soft_contact", "no_contact", "any_contact", "soft_contact"),
-                      slot_order=slot_order)
+                      slot_order=slot_order, object_size=object_size)
     ctrl = ScriptedController()
     obs, info = env.reset(seed=3)
     ctrl.reset()
     for _ in range(40):
         state = env.scene_state()
         ids = env.slot_ids(state)
-        expected = build_observation(state, ids, encode_constraints(env.constraints)[ids])
+        expected = build_observation(state, ids, encode_constraints(env.constraints)[ids], object_size)
         np.testing.assert_array_equal(obs, expected)
         rel = np.linalg.norm(state.obj_vel - state.bottom_vel, axis=1)
         distances = env.object_distances()
@@ -694,3 +694,24 @@ def test_the_env_commands_speeds_through_its_action_curve():
     assert speeds[1.0] == pytest.approx(0.3 * 1.7) and speeds[2.0] == pytest.approx(0.09 * 1.7)
     with pytest.raises(ValueError, match="action_curve"):
         SlideOutEnv(n_objects=0, action_curve=0.5)
+
+
+def test_object_size_slots_carry_each_objects_footprint_radius():
+    """With ``object_size`` every slot ends in its object's catalog footprint radius, in slot order, and the
+    rest of the observation is the default layout's; without it the layout is unchanged (older policies)."""
+    names = ("tennis ball", "camera", "red mug")
+    sized = SlideOutEnv(n_objects=3, names=names, slot_order="nearest", object_size=True)
+    plain = SlideOutEnv(n_objects=3, names=names, slot_order="nearest")
+    obs, _ = sized.reset(seed=5)
+    base, _ = plain.reset(seed=5)
+    assert obs.shape == (observation_dim(3, object_size=True),) == (ROBOT_DIM + 10 * 3,) == sized.observation_space.shape
+    assert base.shape == (observation_dim(3),) and sized.observation_space.contains(obs)
+    ids = sized.slot_ids(sized.scene_state())
+    catalog = load_catalog()
+    slots = obs[ROBOT_DIM:].reshape(3, 10)
+    np.testing.assert_allclose(slots[:, 9], [catalog[names[i]].footprint_radius for i in ids], rtol=1e-6)
+    assert len(set(slots[:, 9].tolist())) == 3  # three different sizes, so the order is really checked
+    np.testing.assert_array_equal(slots[:, :9], base[ROBOT_DIM:].reshape(3, SLOT_DIM))
+    np.testing.assert_array_equal(obs[:ROBOT_DIM], base[:ROBOT_DIM])
+    with pytest.raises(ValueError, match="object_size"):
+        SlideOutEnv(n_objects=1, object_size="yes")

@@ -20,11 +20,13 @@ from safemanip.selection.selectors import ConservativeConstraints, DynamicKNN, G
 from safemanip.selection.view import EnvViewBuilder
 
 
-def make_policy(path, k, constraints="conservative", hidden=(16, 16), seed=0, goal_seeker=False, embodiment="panda"):
+def make_policy(path, k, constraints="conservative", hidden=(16, 16), seed=0, goal_seeker=False, embodiment="panda",
+                object_size=None, obs_dim=None):
     """A tiny random MLP policy file, or (goal_seeker) a one-layer one that drives the box at the goal:
-    the latter hits clutter within a few steps, so collisions of both kinds show up in short runs."""
+    the latter hits clutter within a few steps, so collisions of both kinds show up in short runs.
+    ``object_size`` (True/False) is recorded in the metadata when given; ``obs_dim`` overrides the input size."""
     rng = np.random.default_rng(seed)
-    d = observation_dim(k)
+    d = obs_dim or observation_dim(k, bool(object_size))
     if goal_seeker:
         from safemanip.scene.config import GEOMETRY
 
@@ -44,6 +46,8 @@ def make_policy(path, k, constraints="conservative", hidden=(16, 16), seed=0, go
                                                    "embodiment": embodiment}}
     if embodiment is None:  # a policy from before the Panda arm: its metadata names no embodiment
         del meta["env_kwargs"]["embodiment"]
+    if object_size is not None:
+        meta["env_kwargs"]["object_size"] = object_size
     return str(save_policy(path, arrays, meta))
 
 
@@ -249,3 +253,19 @@ def test_ray_backend_gives_the_same_records_as_local(tmp_path):
     finally:
         ray.shutdown()
     assert remote == local
+
+
+def test_a_policy_trained_with_object_sizes_gets_them_at_evaluation(tmp_path):
+    """The harness reads ``object_size`` from the policy and its reducer hands each slot the object's radius;
+    a policy whose input size disagrees with its metadata is refused before any episode."""
+    sized = make_policy(tmp_path / "sized.safetensors", 2, object_size=True)
+    prepared = prepare(EvalRequest(policy=sized, n_objects=3, selector="dynamic-knn", episodes=2, workers=1))
+    assert prepared.spec.object_size and observation_dim(2, object_size=True) == observation_dim(2) + 2
+    result = evaluate(EvalRequest(policy=sized, n_objects=3, selector="dynamic-knn", episodes=2, workers=1,
+                                   out=str(tmp_path / "ev")))
+    assert result["summary"]["episodes"] == 2
+    assert not prepare(EvalRequest(policy=make_policy(tmp_path / "plain.safetensors", 2), n_objects=3,
+                                   selector="dynamic-knn", episodes=1)).spec.object_size  # older policies: no sizes
+    wrong = make_policy(tmp_path / "wrong.safetensors", 2, object_size=True, obs_dim=observation_dim(2))
+    with pytest.raises(EvalConfigError, match="with object sizes"):
+        prepare(EvalRequest(policy=wrong, n_objects=3, selector="dynamic-knn", episodes=1))

@@ -153,6 +153,16 @@ def test_dynamic_radius_training_env_leaves_absent_slots_empty():
         assert np.linalg.norm(env.env.scene_state().obj_pos[i, :2] - box[:2]) <= 0.3
 
 
+def test_object_size_reaches_the_env_and_the_selection_aware_reducer():
+    plain, sized = TrainConfig(k=2), TrainConfig(k=2, object_size=True)
+    assert plain.env_kwargs["object_size"] is False and sized.env_kwargs["object_size"] is True
+    for cfg in (sized, TrainConfig(k=2, scene_objects=4, object_size=True)):
+        env = make_env(cfg.rollout_env_kwargs)
+        obs, _ = env.reset(seed=1)
+        assert obs.shape == (observation_dim(2, object_size=True),) == env.observation_space.shape
+        env.close()
+
+
 def test_config_rejects_dynamic_radius_for_the_flat_mlp():
     from safemanip.rl.config import ConfigError
 

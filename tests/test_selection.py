@@ -6,7 +6,7 @@ import pytest
 from safemanip.env.observation import ROBOT_DIM, SLOT_DIM, SceneState, observation_dim
 from safemanip.rl.numpy_actor import NumpyActor
 from safemanip.selection.base import SceneView
-from safemanip.selection.reducer import DUMMY_POSITIONS, Reducer, order_by_distance
+from safemanip.selection.reducer import DUMMY_POSITIONS, DUMMY_RADIUS, Reducer, order_by_distance
 from safemanip.evaluation.registry import (CONSTRAINT_SELECTORS, OBJECT_SELECTORS, SelectorOptions,
                                            make_constraint_selector, make_object_selector)
 from safemanip.selection.selectors import (ConservativeConstraints, DynamicKNN, FullSelector, GroundTruthConstraints,
@@ -176,6 +176,20 @@ def test_reducer_pads_missing_slots_with_far_dummies_only_when_allowed():
     assert np.all(DUMMY_POSITIONS[:, 1] > 0.2) and np.all(np.abs(DUMMY_POSITIONS[:, 0]) < 0.75)
     empty = Reducer(2, "all", pad=True)(state(np.zeros((0, 2))), [], [])
     assert empty.shape == (observation_dim(2),)
+
+
+def test_reducer_gives_a_sized_policy_each_slots_radius_and_dummies_a_mid_size():
+    s = state([[0.5, 0.0], [0.1, 0.0], [0.0, 0.3]])._replace(obj_radius=np.array([0.03, 0.1, 0.06]))
+    red = Reducer(4, "conservative", pad=True, object_size=True)
+    obs = red(s, [2, 0, 1], ["no_contact"] * 3)
+    assert obs.shape == (observation_dim(4, object_size=True),) == (red.obs_dim,)
+    sl = obs[ROBOT_DIM:].reshape(4, SLOT_DIM + 1)
+    np.testing.assert_allclose(sl[:, 9], [0.1, 0.06, 0.03, DUMMY_RADIUS], atol=1e-7)  # nearest first, then the dummy
+    np.testing.assert_array_equal(sl[:3, :9], slots(Reducer(3, "conservative")(s, [2, 0, 1], ["no_contact"] * 3), 3))
+    empty = Reducer(3, "all", empty_slots=True, object_size=True)(s, [1], ["no_contact"] * 3)
+    np.testing.assert_array_equal(empty[ROBOT_DIM + 10:], 0.0)  # absent slots stay all zeros, size included
+    with pytest.raises(ValueError, match="obj_radius"):
+        Reducer(2, "conservative", object_size=True)(state([[0.1, 0.0], [0.2, 0.0]]), [0, 1], ["no_contact"] * 2)
 
 
 def test_reducer_rejects_bad_input():

@@ -116,7 +116,9 @@ def run_demo(out_dir: str | Path = "demo_output", controller: str = "policy", po
         k = int(meta["k"])
         if n_objects < k:
             raise ValueError(f"the policy needs at least k={k} objects in the scene; use --n-objects {k} or more")
-        reducer = Reducer(k, meta["constraints"])
+        from safemanip.rl.checkpoint import policy_object_size
+
+        reducer = Reducer(k, meta["constraints"], object_size=policy_object_size(meta))
         constraint_selector = make_constraint_selector("conservative" if meta["constraints"] == "conservative"
                                                        else "ground-truth")
         record_reset = {"done": False}

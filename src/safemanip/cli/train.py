@@ -12,6 +12,7 @@ from pathlib import Path
 
 from safemanip.cli.common import SEED, CliError, float_in, int_in
 
+SWITCH = "switch"  # a flag without a value that sets its field to true
 # flag -> (TrainConfig field, argparse type, help); every one is checked for range here and again by TrainConfig
 FLAGS = {
     "--algorithm": ("algorithm", None, "rarl (reach-avoid backup) or vanilla (DDPG on r = min(l, g))"),
@@ -19,6 +20,8 @@ FLAGS = {
     "--constraints": ("constraints", None, "conservative (all no_contact) or all (types drawn per episode)"),
     "--embodiment": ("embodiment", None, "panda (the 7-DoF Franka Panda, default) or hand (the idealised ablation)"),
     "--action-curve": ("action_curve", float_in(1, 4), "commanded speed = 1.7 m/s x |a|^curve (1: linear; default 2)"),
+    "--object-size": ("object_size", SWITCH, "each object slot also carries its footprint radius (flat MLP; not the "
+                                             "paper's layout)"),
     "--total-env-steps": ("total_env_steps", int_in(1, 10**12), "budget in environment steps"),
     "--minutes": ("minutes", float_in(0, 525_600), "wall-clock budget in minutes (0: no time limit)"),
     "--seed": ("seed", SEED, "seed of everything random in the run"),
@@ -104,6 +107,9 @@ def register(sub) -> None:
     known = {f.name for f in fields(TrainConfig)}
     for flag, (field, typ, help_) in FLAGS.items():
         assert field in known, field
-        tr.add_argument(flag, dest=field, type=typ, choices=CHOICES.get(flag), help=help_)
+        if typ is SWITCH:
+            tr.add_argument(flag, dest=field, action="store_const", const=True, default=None, help=help_)
+        else:
+            tr.add_argument(flag, dest=field, type=typ, choices=CHOICES.get(flag), help=help_)
     tr.add_argument("--no-progress", action="store_true")
     tr.set_defaults(func=_cmd_train)

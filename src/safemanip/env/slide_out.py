@@ -24,7 +24,7 @@ import numpy as np
 
 from safemanip.control.diff_ik import MAX_EE_ACCEL, MAX_EE_SPEED, limit_ee_velocity, shape_action
 from safemanip.env import margins as M
-from safemanip.env.observation import SLOT_DIM, SceneState, encode_constraints, observation_space
+from safemanip.env.observation import SceneState, encode_constraints, observation_space, slot_dim
 from safemanip.scene.builder import CONTROL_DT, SUBSTEPS, SceneIndex, build_model
 from safemanip.scene.catalog import CONSTRAINT_TYPES, load_catalog, names_of_class
 from safemanip.scene.config import GEOMETRY, SceneConfig
@@ -46,7 +46,7 @@ class SlideOutEnv(gym.Env):
                  render_mode: str | None = None, max_episode_steps: int = 300,
                  thresholds: M.Thresholds = M.DEFAULT_THRESHOLDS, sleep: bool = True, slot_order: str = "index",
                  render_size: tuple[int, int] = (480, 640), embodiment: str = "panda", visual: bool | None = None,
-                 action_curve: float = 1.0):
+                 action_curve: float = 1.0, object_size: bool = False):
         if isinstance(classes, str):
             from safemanip.scene.config import parse_semantics
             classes = parse_semantics(classes)
@@ -74,6 +74,10 @@ class SlideOutEnv(gym.Env):
         if not (isinstance(action_curve, (int, float)) and 1.0 <= action_curve <= 4.0):
             raise ValueError(f"action_curve must be a number from 1 (linear) to 4, got {action_curve!r}")
         self.action_curve = float(action_curve)
+        if not isinstance(object_size, (bool, np.bool_)):
+            raise ValueError(f"object_size must be true or false, got {object_size!r}")
+        self.object_size = bool(object_size)
+        """Each observation slot also carries the object's footprint radius (``env/observation.py``)."""
         self.constraint_mode = constraints
         self.render_mode = render_mode
         self.max_episode_steps = int(max_episode_steps)
@@ -88,7 +92,7 @@ class SlideOutEnv(gym.Env):
         self.visual = (render_mode is not None) if visual is None else bool(visual)
         self.robot = make_embodiment(embodiment, visual=self.visual, gap=thresholds.collision)
         self.n_substeps = SUBSTEPS
-        self.observation_space = observation_space(n_objects)
+        self.observation_space = observation_space(n_objects, self.object_size)
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
         self._sims: dict[tuple[str, ...], tuple] = {}
         self._radii: dict[tuple[str, ...], np.ndarray] = {}
@@ -106,7 +110,8 @@ class SlideOutEnv(gym.Env):
             data = mujoco.MjData(model)
             index, binding = SceneIndex.from_model(model, len(names), self.robot), self.robot.bind(model)
             _evict_oldest(self._sims)
-            self._sims[names] = (model, data, index, binding, _StateGather.build(model, index, binding, data))
+            self._sims[names] = (model, data, index, binding, _StateGather.build(model, index, binding, data,
+                                                                                   self.object_size))
         return self._sims[names]
 
     def _footprint_radii(self, names: tuple[str, ...]) -> np.ndarray:
@@ -117,15 +122,20 @@ class SlideOutEnv(gym.Env):
         return self._radii[names]
 
     def _constraint_tables(self, names: tuple[str, ...], constraints: tuple[str, ...]) -> tuple:
-        """Per-episode lookups that depend only on (names, constraints): computed once per combination."""
+        """Per-episode lookups that depend only on (names, constraints): computed once per combination.
+
+        The first is the flat state's per-episode tail: the constraint one-hots, then (``object_size``)
+        the footprint radii."""
         key = (names, constraints)
         if key not in self._tables:
             soft = [c == "soft_contact" for c in constraints]
             checked = [i for i, c in enumerate(constraints) if c != "any_contact"]
             margin_names = {i: f"{'g_soft' if soft[i] else 'g_hard'}:{i}:{names[i]}" for i in checked}
             _evict_oldest(self._tables)
-            self._tables[key] = (encode_constraints(constraints).ravel().astype(np.float64), soft, checked,
-                                 margin_names)
+            tail = [encode_constraints(constraints).ravel().astype(np.float64)]
+            if self.object_size:
+                tail.append(self._footprint_radii(names).astype(np.float64))
+            self._tables[key] = (np.concatenate(tail), soft, checked, margin_names)
         return self._tables[key]
 
     def _choose_names(self, rng: np.random.Generator) -> tuple[str, ...]:
@@ -173,7 +183,7 @@ class SlideOutEnv(gym.Env):
             d.qpos[adr + 3:adr + 7] = (np.cos(placement.yaw[i] / 2), 0, 0, np.sin(placement.yaw[i] / 2))
         mujoco.mj_forward(m, d)
         self._top_start = d.xpos[idx.top_box_body, :2].tolist()
-        self._onehot_flat, self._soft_flags, self._checked_list, self._margin_names = \
+        self._episode_flat, self._soft_flags, self._checked_list, self._margin_names = \
             self._constraint_tables(names, self.constraints)
         self._t = 0
         self._command = np.zeros(3)
@@ -237,7 +247,7 @@ class SlideOutEnv(gym.Env):
         """
         g = self.gather
         flat = np.concatenate((g.site_xpos[g.ee_site], g.sensordata[g.box_vel], g.qvel[g.qvel_index],
-                               g.xpos[g.body_rows].ravel(), self._onehot_flat))
+                               g.xpos[g.body_rows].ravel(), self._episode_flat))
         values = flat.tolist()
         self._flat, self._values, self._state = flat, values, None
         if math.isfinite(sum(values)):
@@ -257,7 +267,7 @@ class SlideOutEnv(gym.Env):
             self._state = SceneState(
                 ee_pos=flat[0:3], ee_vel=ee_vel, bottom_pos=flat[g.bottom_pos], bottom_vel=ee_vel,  # rigidly held
                 top_pos=flat[g.top_pos], top_vel=flat[6:9], obj_pos=flat[g.obj_pos].reshape(-1, 3),
-                obj_vel=flat[g.obj_vel].reshape(-1, 3))
+                obj_vel=flat[g.obj_vel].reshape(-1, 3), obj_radius=self._footprint_radii(self.names))
         return self._state
 
     def watch_substeps(self, every: int | None, hook=None) -> None:
@@ -472,7 +482,7 @@ class _StateGather:
     """Index arrays and MjData views, built once per compiled scene, that read the state in two gathers.
 
     The flat state is ``[ee_pos(3), box_vel(3), top_vel(3), obj_vel(3N), bottom_pos(3), top_pos(3),
-    obj_pos(3N), constraint one-hots(3N)]`` (the held box is welded to the hand: its velocity is the
+    obj_pos(3N), constraint one-hots(3N), footprint radii(N, with object_size)]`` (the held box is welded to the hand: its velocity is the
     end-effector's); an observation is one gather from it.
 
     The judge sensors' history is read as one (substeps, columns) gather through ``history_index``; the
@@ -498,7 +508,7 @@ class _StateGather:
     geom_pairs: list[list[tuple[int, int]]]  # per object: (manipulated geom, object geom) pairs to query
     index_order: np.ndarray
     robot_sources: np.ndarray  # (18,): flat-state indices of the robot and box part of the observation
-    slot_sources: np.ndarray  # (N, 9): flat-state indices of each object's position, velocity and one-hot
+    slot_sources: np.ndarray  # (N, 9 or 10): flat-state indices of each slot entry (observation.py layout)
     index_sources: np.ndarray  # observation_sources(index_order), the common case, precomputed
     history_index: np.ndarray  # (substeps, columns) indices into MjData.history
     h_found: np.ndarray  # (N,) columns: contact found between the robot's subtree and object i
@@ -510,15 +520,18 @@ class _StateGather:
     h_top_up_z: int  # the z component of the top box's up axis
 
     @classmethod
-    def build(cls, model: mujoco.MjModel, index: SceneIndex, binding, data: mujoco.MjData) -> "_StateGather":
+    def build(cls, model: mujoco.MjModel, index: SceneIndex, binding, data: mujoco.MjData,
+              object_size: bool = False) -> "_StateGather":
         n = len(index.object_bodies)
         p0 = 9 + 3 * n  # start of the positions block
         h0 = p0 + 6 + 3 * n  # start of the one-hots
         bottom, top = slice(p0, p0 + 3), slice(p0 + 3, p0 + 6)
         obj_pos, obj_vel = slice(p0 + 6, h0), slice(9, 9 + 3 * n)
         robot = np.r_[0:3, 3:6, bottom, 3:6, top, 6:9].astype(np.intp)
-        slots = np.array([np.r_[p0 + 6 + 3 * i:p0 + 9 + 3 * i, 9 + 3 * i:12 + 3 * i, h0 + 3 * i:h0 + 3 * i + 3]
-                          for i in range(n)], dtype=np.intp).reshape(n, SLOT_DIM)
+        r0 = h0 + 3 * n  # start of the radii (present with object_size)
+        slots = np.array([np.r_[p0 + 6 + 3 * i:p0 + 9 + 3 * i, 9 + 3 * i:12 + 3 * i, h0 + 3 * i:h0 + 3 * i + 3,
+                                r0 + i:r0 + i + (1 if object_size else 0)]
+                          for i in range(n)], dtype=np.intp).reshape(n, slot_dim(object_size))
         manipulated = [int(g) for g in index.manipulated_geoms]
         columns: list[np.ndarray] = []  # per column, its (substeps,) indices into MjData.history
 

@@ -95,7 +95,7 @@ class Prepared:
 
 def _policy_problems(req: EvalRequest, problems: list[str]):
     from safemanip.env.observation import observation_dim
-    from safemanip.rl.checkpoint import embodiment_problem, load_policy
+    from safemanip.rl.checkpoint import embodiment_problem, load_policy, policy_object_size
 
     try:
         actor, meta = load_policy(req.policy)
@@ -119,9 +119,10 @@ def _policy_problems(req: EvalRequest, problems: list[str]):
         problems.append(f"--policy {req.policy}: unknown constraint set {meta['constraints']!r} in its metadata")
         return None, None
     obs_dim = actor.obs_dim  # None: a set network takes any number of slots
-    if obs_dim is not None and obs_dim != observation_dim(int(meta["k"])):
+    expected = observation_dim(int(meta["k"]), policy_object_size(meta))
+    if obs_dim is not None and obs_dim != expected:
         problems.append(f"--policy {req.policy}: input size {obs_dim} does not match k={meta['k']} "
-                        f"(expected {observation_dim(int(meta['k']))})")
+                        f"(expected {expected}{' with object sizes' if policy_object_size(meta) else ''})")
         return None, None
     mismatch = embodiment_problem(meta, req.embodiment, f"--policy {req.policy}")
     if mismatch:
@@ -248,7 +249,7 @@ def prepare(req: EvalRequest) -> Prepared:
     if problems:
         raise EvalConfigError("cannot run this evaluation:\n  - " + "\n  - ".join(problems))
 
-    from safemanip.rl.checkpoint import policy_action_curve
+    from safemanip.rl.checkpoint import policy_action_curve, policy_object_size
 
     env_train = meta["env_kwargs"]
     env_kwargs = {"n_objects": n, "classes": classes, "constraints": JUDGES[req.judge],
@@ -262,7 +263,8 @@ def prepare(req: EvalRequest) -> Prepared:
                               vlm_max_failures=req.vlm_max_failures)
     constraints = req.constraints or ("conservative" if meta["constraints"] == "conservative" else "ground-truth")
     spec = EvalSpec(actor_arrays=arrays, k=k, policy_constraints=meta["constraints"], env_kwargs=env_kwargs,
-                    selector=selector, constraints=constraints, options=options, pad=req.pad)
+                    selector=selector, constraints=constraints, options=options, pad=req.pad,
+                    object_size=policy_object_size(meta))
     seeds = [req.seed * SEED_STRIDE + i for i in range(req.episodes)]
     return Prepared(req, spec, meta, seeds, n, notes)
 

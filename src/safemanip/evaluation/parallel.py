@@ -48,6 +48,8 @@ class EvalSpec:
     options: SelectorOptions = field(default_factory=SelectorOptions)
     pad: bool = False
     camera: str = "front"
+    object_size: bool = False
+    """The policy's slots carry footprint radii (it was trained with ``object_size``)."""
 
 
 @contextlib.contextmanager
@@ -73,7 +75,8 @@ def run_chunk(spec: EvalSpec, seeds: list[int]) -> list[dict]:
         env = SlideOutEnv(**spec.env_kwargs)
         try:
             actor = make_numpy_actor(spec.actor_arrays)
-            reducer = Reducer(spec.k, spec.policy_constraints, pad=spec.pad, empty_slots=actor.network == "set")
+            reducer = Reducer(spec.k, spec.policy_constraints, pad=spec.pad, empty_slots=actor.network == "set",
+                              object_size=spec.object_size)
             osel = make_object_selector(spec.selector, spec.options)
             csel = make_constraint_selector(spec.constraints, spec.options)
             builder = EnvViewBuilder(camera=spec.camera)

@@ -330,5 +330,10 @@ def policy_action_curve(meta: dict) -> float:
     return float(meta["env_kwargs"].get("action_curve", 1.0))
 
 
+def policy_object_size(meta: dict) -> bool:
+    """Whether a (checked) policy's slots carry the footprint radius; policies from before the option: no."""
+    return bool(meta["env_kwargs"].get("object_size", False))
+
+
 def _refuse_constant(name: str):
     raise ValueError(f"{name} is not allowed")

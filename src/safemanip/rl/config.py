@@ -34,6 +34,10 @@ class TrainConfig:
     """Action -> commanded speed: max speed x |a|^action_curve along a (``control.diff_ik.shape_action``). With 2,
     placing the box at rest (< 5 cm/s) asks for |a| < 0.17 instead of 0.03, so exploration noise and the actor's
     gradient can find it; full speed is still |a| = 1. Recorded in the policy (policies without it: 1)."""
+    object_size: bool = False
+    """Each object slot also carries the object's footprint radius (``env/observation.py``): the catalog's objects
+    span 3-10 cm, and without it the policy cannot tell how wide a berth an object needs. Not the paper's layout;
+    recorded in the policy (policies without it: no size). Flat MLP only for now."""
     slot_order: str = "nearest"
     """Order of the object slots in the observation: 'nearest' (by distance to the held box, re-sorted every
     step -- the order the deployment reducer uses) or 'index' (the scene's fixed object order)."""
@@ -183,7 +187,7 @@ class TrainConfig:
         if self.env == DEFAULT_ENV and self.extra_env_kwargs:
             problems.append("extra_env_kwargs apply to non-default envs only (the slide-out env takes its settings "
                             "from k, constraints, near_path_fraction, max_episode_steps, slot_order, embodiment and "
-                            "action_curve)")
+                            "action_curve, object_size)")
         problems += self._learner_problems()
         if problems:
             raise ConfigError("invalid training config:\n  - " + "\n  - ".join(problems))
@@ -208,6 +212,9 @@ class TrainConfig:
             if self.env != DEFAULT_ENV:
                 problems.append(f"scene_objects (selection-aware training) works on the {DEFAULT_ENV!r} env, "
                                 f"not {self.env!r}")
+        if self.object_size and self.network == "set":
+            problems.append("object_size is for the flat MLP so far (the set network's slot encoder reads 9 entries "
+                            "per slot): train the set network without --object-size")
         if self.selector == "dynamic-radius" and self.network != "set":
             problems.append("selector 'dynamic-radius' hands the policy a varying number of objects: use network 'set'")
         if self.address is not None:
@@ -238,7 +245,8 @@ class TrainConfig:
             return {"env": self.env, **self.extra_env_kwargs}
         return {"n_objects": self.k, "constraints": "random" if self.constraints == "all" else "conservative",
                 "near_path_fraction": self.near_path_fraction, "max_episode_steps": self.max_episode_steps,
-                "slot_order": self.slot_order, "embodiment": self.embodiment, "action_curve": self.action_curve}
+                "slot_order": self.slot_order, "embodiment": self.embodiment, "action_curve": self.action_curve,
+                "object_size": self.object_size}
 
     def gamma_at(self, progress: float) -> float:
         if self.gamma_start is None:

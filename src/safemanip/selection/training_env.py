@@ -36,20 +36,20 @@ class SelectedSlotsEnv(gym.Env):
 
     def __init__(self, k: int, n_objects: int, selector: str = "dynamic-knn", radius: float = DEFAULT_RADIUS,
                  interval: int = DEFAULT_INTERVAL, constraints: str = "conservative", slot_order: str | None = None,
-                 **env_kwargs):
+                 object_size: bool = False, **env_kwargs):
         if selector not in TRAINING_SELECTORS:
             raise ValueError(f"selector must be one of {sorted(TRAINING_SELECTORS)}, got {selector!r}")
         if not 0 <= k <= n_objects and selector == "dynamic-knn":
             raise ValueError(f"dynamic-knn needs k <= N, got k={k}, N={n_objects}")
         del slot_order  # the reducer orders the slots (nearest first), as at deployment
-        self.env = SlideOutEnv(n_objects=n_objects, constraints=constraints, **env_kwargs)
+        self.env = SlideOutEnv(n_objects=n_objects, constraints=constraints, object_size=object_size, **env_kwargs)
         self.k = int(k)
         # a varying number of picks leaves slots empty: zeros, which a set network masks out
         self.reducer = Reducer(self.k, "all" if constraints == "random" else "conservative",
-                               empty_slots=selector == "dynamic-radius")
+                               empty_slots=selector == "dynamic-radius", object_size=self.env.object_size)
         self.selector = TRAINING_SELECTORS[selector](interval, radius)
         self.builder = EnvViewBuilder()
-        self.observation_space = observation_space(self.k)
+        self.observation_space = observation_space(self.k, self.env.object_size)
         self.action_space = self.env.action_space
         self.max_episode_steps = self.env.max_episode_steps
         self.selected: list[int] = []
