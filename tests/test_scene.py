@@ -333,3 +333,27 @@ def test_placement_that_cannot_fit_raises_a_helpful_error():
     # a full corridor is no error: the objects that do not fit there go anywhere free
     p = sample_placement(np.full(5, 0.1), np.random.default_rng(0), 1.0, max_tries=200)
     assert 0 < p.near_path.sum() < 5
+
+
+def _model_bytes(model) -> bytes:
+    import mujoco
+
+    buf = np.zeros(mujoco.mj_sizeModel(model), np.uint8)
+    mujoco.mj_saveModel(model, None, buf)
+    return buf.tobytes()
+
+
+@pytest.mark.parametrize("embodiment", ["panda", "hand"])
+def test_scenes_built_from_the_cached_base_equal_scenes_built_from_scratch(embodiment):
+    """The table, robot and boxes are built once and copied for every object set: the copy must not carry
+    anything from an earlier scene, and must compile to the same bytes as a scene built from nothing."""
+    from safemanip.scene import builder
+    from safemanip.scene.embodiment import make_embodiment
+
+    robot = make_embodiment(embodiment, visual=False, gap=0.01)
+    builder.build_spec(("camera", "tennis ball", "wine glass"), robot).compile()  # leaves the base cached
+    names = ("red mug", "toy squirrel")
+    cached = builder.build_spec(names, robot).compile()
+    builder._BASES.clear()
+    scratch = builder.build_spec(names, robot).compile()
+    assert _model_bytes(cached) == _model_bytes(scratch)

@@ -126,17 +126,33 @@ def _add_judge_sensors(spec: mujoco.MjSpec, embodiment: Embodiment, n_objects: i
     sensor("judge_top_up", mujoco.mjtSensor.mjSENS_FRAMEZAXIS, xbody, "box_top")
 
 
+_BASES: dict[tuple, mujoco.MjSpec] = {}
+
+
+def _scene_base(embodiment: Embodiment, geometry: TaskGeometry) -> mujoco.MjSpec:
+    """Table, robot with the held box, and top box: the part of every scene that does not depend on the
+    clutter, built once per (embodiment, geometry) and copied (0.4 ms) for each new object set instead of
+    rebuilt (~3 ms for the Panda). A copy plus the objects compiles to a byte-identical model (tested)."""
+    key = (embodiment.cache_key, geometry)
+    if key not in _BASES:
+        if len(_BASES) >= 8:  # a few embodiments and geometries at most; never grow without bound
+            _BASES.clear()
+        spec = mujoco.MjSpec()
+        spec.modelname = "slide_out"
+        _add_arena(spec, geometry)
+        embodiment.attach(spec, geometry, WHITE_BOX, BOX_FRICTION, CONTROL_DT)
+        _add_top_box(spec, geometry)
+        _BASES[key] = spec
+    return _BASES[key]
+
+
 def build_spec(names: tuple[str, ...], embodiment: Embodiment | None = None, geometry: TaskGeometry = GEOMETRY,
                sleep: bool = True, judge: bool = True) -> mujoco.MjSpec:
     """The scene's spec. ``judge=False`` leaves out the per-substep judge sensors (benchmarks use it to
     price them; the env needs them)."""
     catalog = load_catalog()
     embodiment = embodiment if embodiment is not None else make_embodiment("panda")
-    spec = mujoco.MjSpec()
-    spec.modelname = "slide_out"
-    _add_arena(spec, geometry)
-    embodiment.attach(spec, geometry, WHITE_BOX, BOX_FRICTION, CONTROL_DT)
-    _add_top_box(spec, geometry)
+    spec = _scene_base(embodiment, geometry).copy()
     for i, name in enumerate(names):
         _add_object(spec, i, catalog[name])
     if judge:
