@@ -217,6 +217,8 @@ TRAIN = ["train", "--no-progress"]
     (["--k", "99"], "argument --k"),
     (["--gamma", "1"], "gamma must be in (0, 1)"),
     (["--gamma", "0.9", "--gamma-start", "0.95"], "gamma_start must be in (0, gamma]"),
+    (["--learning-rate-final", "0.01"], "learning_rate_final must be in (0, learning_rate"),
+    (["--learning-rate-final", "0"], "argument --learning-rate-final"),
     (["--algorithm", "ppo"], "argument --algorithm"),
     # the learner's flags (issue 10)
     (["--workers", "0"], "argument --workers"),

@@ -103,6 +103,29 @@ def test_actor_and_targets_move_only_every_policy_delay_updates():
     assert not same(params(learner.actor), actor0) and not same(params(learner.critic_targ), targ0)
 
 
+def test_learning_rate_schedule_is_a_cosine_from_the_rate_to_the_final_one_and_reaches_the_optimisers():
+    constant = TrainConfig(**SMALL)
+    assert constant.learning_rate_at(0.0) == constant.learning_rate_at(0.7) == constant.learning_rate
+    cfg = TrainConfig(**SMALL, learning_rate=1e-3, learning_rate_final=1e-4)
+    assert cfg.learning_rate_at(0.0) == pytest.approx(1e-3) and cfg.learning_rate_at(1.0) == pytest.approx(1e-4)
+    assert cfg.learning_rate_at(0.5) == pytest.approx(5.5e-4) and cfg.learning_rate_at(2.0) == pytest.approx(1e-4)
+    rates = [cfg.learning_rate_at(p / 10) for p in range(11)]
+    assert all(a > b for a, b in zip(rates, rates[1:]))
+    # a step taken at a tenth of the rate moves the weights by about a tenth as much (Adam's first steps are
+    # the rate times the gradient's sign)
+    moves = []
+    for lr in (1e-3, 1e-4):
+        torch.manual_seed(0)
+        learner = Learner(OBS, ACT, cfg)
+        learner.set_learning_rate(lr)
+        before = params(learner.critic)
+        learner.update(batch(), 0.99)
+        moves.append(max(float((a - b).abs().max()) for a, b in zip(params(learner.critic), before)))
+    assert moves[1] == pytest.approx(moves[0] / 10, rel=0.05)
+    with pytest.raises(ConfigError, match="learning_rate_final"):
+        TrainConfig(**SMALL, learning_rate_final=0.01)
+
+
 def test_polyak_update_in_closed_form():
     online = [torch.tensor([1.0, 2.0]), torch.tensor([[3.0]])]
     target = [torch.tensor([0.0, 0.0]), torch.tensor([[1.0]])]

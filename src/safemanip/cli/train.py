@@ -28,6 +28,8 @@ FLAGS = {
     "--out": ("out_dir", None, "run folder (checkpoints, logs, policies)"),
     "--gamma": ("gamma", float_in(0, 1), "discount factor, in (0, 1)"),
     "--gamma-start": ("gamma_start", float_in(0, 1), "anneal gamma from this value over the first half of the budget"),
+    "--learning-rate-final": ("learning_rate_final", float_in(0, 1, lo_open=True),
+                              "let both learning rates fall on a cosine to this over the budget (default: constant)"),
     "--env-steps-per-update": ("env_steps_per_update", float_in(0, 10_000, lo_open=True),
                                "environment steps collected per learner update"),
     "--eval-every-s": ("eval_every_s", float_in(0, 86_400, lo_open=True), "seconds between evaluations"),

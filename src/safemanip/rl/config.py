@@ -50,6 +50,9 @@ class TrainConfig:
     # -- Table V
     batch_size: int = 200
     learning_rate: float = 1e-3
+    learning_rate_final: float | None = None
+    """If set, both learning rates fall from ``learning_rate`` to this on a cosine over the budget (the same
+    progress measure as gamma's anneal); None keeps Table V's constant rate."""
     buffer_size: int = 100_000
     gamma: float = 0.99
     """Discount factor; with ``gamma_start`` set it is annealed from gamma_start to this value."""
@@ -143,6 +146,9 @@ class TrainConfig:
             problems.append(f"polyak must be in (0, 1), got {self.polyak}")
         if not 0 < self.learning_rate <= 1:
             problems.append(f"learning_rate must be in (0, 1], got {self.learning_rate}")
+        if self.learning_rate_final is not None and not 0 < self.learning_rate_final <= self.learning_rate:
+            problems.append(f"learning_rate_final must be in (0, learning_rate = {self.learning_rate}], "
+                            f"got {self.learning_rate_final}")
         if self.batch_size < 1 or self.buffer_size < self.batch_size:
             problems.append("batch_size must be >= 1 and buffer_size >= batch_size")
         for name, hi in LIMITS.items():
@@ -247,6 +253,12 @@ class TrainConfig:
                 "near_path_fraction": self.near_path_fraction, "max_episode_steps": self.max_episode_steps,
                 "slot_order": self.slot_order, "embodiment": self.embodiment, "action_curve": self.action_curve,
                 "object_size": self.object_size}
+
+    def learning_rate_at(self, progress: float) -> float:
+        if self.learning_rate_final is None:
+            return self.learning_rate
+        frac = min(1.0, max(0.0, progress))
+        return self.learning_rate_final + (self.learning_rate - self.learning_rate_final) * 0.5 * (1 + math.cos(math.pi * frac))
 
     def gamma_at(self, progress: float) -> float:
         if self.gamma_start is None:

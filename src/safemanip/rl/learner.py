@@ -54,6 +54,12 @@ class Learner:
         self._target = [*self.actor_targ.parameters(), *self.critic_targ.parameters()]
         self.updates = 0
 
+    def set_learning_rate(self, lr: float) -> None:
+        """Both optimisers' rate (a schedule's value for this update; Adam's moments are unaffected)."""
+        for opt in (self.actor_opt, self.critic_opt):
+            for group in opt.param_groups:
+                group["lr"] = lr
+
     def autocast(self):
         """bf16 autocast for forward passes, or nothing (fp32)."""
         if self.precision.dtype != "bf16":

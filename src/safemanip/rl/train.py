@@ -184,6 +184,7 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
     steps_at_log, updates_at_log = env_steps, updates
     last_eval_result: dict | None = None
     gamma = cfg.gamma_at(0.0)
+    learning_rate = cfg.learning_rate_at(0.0)
 
     def elapsed() -> float:
         return elapsed_before + time.perf_counter() - start
@@ -233,8 +234,12 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
                 can_update = buffer.size >= cfg.learning_starts and \
                     updates < (env_steps - cfg.learning_starts) / cfg.env_steps_per_update + 1
                 if can_update:
-                    gamma = cfg.gamma_at(env_steps / cfg.total_env_steps if cfg.minutes is None
-                                         else max(env_steps / cfg.total_env_steps, elapsed() / (60 * cfg.minutes)))
+                    progress = env_steps / cfg.total_env_steps if cfg.minutes is None \
+                        else max(env_steps / cfg.total_env_steps, elapsed() / (60 * cfg.minutes))
+                    gamma = cfg.gamma_at(progress)
+                    if cfg.learning_rate_final is not None:
+                        learning_rate = cfg.learning_rate_at(progress)
+                        learner.set_learning_rate(learning_rate)
                     last_metrics = learner.update(buffer.sample(cfg.batch_size, rng), gamma)
                     updates += 1
                     pool.set_updates(updates)
@@ -258,7 +263,8 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
                     train_events = Counter(recent_events)
                     n_ep = max(1, len(recent_events))
                     rollout = {f"rollout/{k}": v / n_ep for k, v in train_events.items()}
-                    log.log({**rates, **last_metrics, **rollout, "train/gamma": gamma}, env_steps, updates, elapsed())
+                    log.log({**rates, **last_metrics, **rollout, "train/gamma": gamma,
+                             "train/learning_rate": learning_rate}, env_steps, updates, elapsed())
                     if bar is not None:
                         bar.update(env_steps - bar.n)
                         post = {"steps/s": f"{rates['perf/env_steps_per_s']:.0f}",
