@@ -51,9 +51,9 @@ def test_the_corrections_are_applied():
     np.testing.assert_allclose(data.xmat[link7].reshape(3, 3)[:, 2], [0, 0, -1], atol=1e-3)
 
 
-def test_each_load_is_an_independent_copy_of_the_parsed_model():
-    """The XML is parsed once and copies are handed out: editing or attaching one must not leak into the
-    next scene, and a copy must compile to the same model as the first one did."""
+def test_each_load_is_independent_and_compiles_to_the_same_model():
+    """Editing or attaching one loaded Panda must not leak into the next load (scenes reuse what they build),
+    and a later load must compile to the same model as the first one did."""
     first = load_panda_spec(visual=False, gap=0.01)
     reference = first.compile()
     first.joint(JOINTS[0]).damping = [7.0, 0.0, 0.0]

@@ -119,10 +119,11 @@ def _policy_problems(req: EvalRequest, problems: list[str]):
         problems.append(f"--policy {req.policy}: unknown constraint set {meta['constraints']!r} in its metadata")
         return None, None
     obs_dim = actor.obs_dim  # None: a set network takes any number of slots
-    expected = observation_dim(int(meta["k"]), policy_object_size(meta))
+    sized = policy_object_size(meta)
+    expected = observation_dim(int(meta["k"]), sized)
     if obs_dim is not None and obs_dim != expected:
         problems.append(f"--policy {req.policy}: input size {obs_dim} does not match k={meta['k']} "
-                        f"(expected {expected}{' with object sizes' if policy_object_size(meta) else ''})")
+                        f"(expected {expected}{' with object sizes' if sized else ''})")
         return None, None
     mismatch = embodiment_problem(meta, req.embodiment, f"--policy {req.policy}")
     if mismatch:

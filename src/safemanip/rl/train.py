@@ -234,11 +234,11 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
                 can_update = buffer.size >= cfg.learning_starts and \
                     updates < (env_steps - cfg.learning_starts) / cfg.env_steps_per_update + 1
                 if can_update:
-                    progress = env_steps / cfg.total_env_steps if cfg.minutes is None \
+                    budget_used = env_steps / cfg.total_env_steps if cfg.minutes is None \
                         else max(env_steps / cfg.total_env_steps, elapsed() / (60 * cfg.minutes))
-                    gamma = cfg.gamma_at(progress)
+                    gamma = cfg.gamma_at(budget_used)
                     if cfg.learning_rate_final is not None:
-                        learning_rate = cfg.learning_rate_at(progress)
+                        learning_rate = cfg.learning_rate_at(budget_used)
                         learner.set_learning_rate(learning_rate)
                     last_metrics = learner.update(buffer.sample(cfg.batch_size, rng), gamma)
                     updates += 1

@@ -90,18 +90,8 @@ def panda_asset_dir() -> Path:
 
 
 def load_panda_spec(visual: bool = True, gap: float = 0.0) -> mujoco.MjSpec:
-    """The corrected Panda as an MjSpec (root body ``panda0_link0``; not yet attached to anything).
-
-    A fresh copy of a spec parsed and corrected once per (visual, gap): parsing the package's XML costs
-    ~8 ms, which a scene build paid on every new object set (a reset at N = 6 draws a new set almost
-    every time); copying costs ~0.1 ms. The caller may edit or attach the copy freely.
-    """
-    return _corrected_panda_spec(visual, gap).copy()
-
-
-@lru_cache(maxsize=8)
-def _corrected_panda_spec(visual: bool, gap: float) -> mujoco.MjSpec:
-    """Parsed from the installed package and corrected; never handed out (only copies are).
+    """The corrected Panda as an MjSpec (root body ``panda0_link0``; not yet attached to anything), parsed
+    afresh (~8 ms): scenes attach it once per embodiment and reuse that (``scene/builder.py: _scene_base``).
 
     ``visual=False`` drops the visual meshes (their mesh processing is ~95 % of a scene's compile time):
     the collision meshes are then shown instead. Physics is identical either way (visual geoms are
