@@ -234,7 +234,6 @@ TRAIN = ["train", "--no-progress"]
     (["--k", "4", "--scene-objects", "2"], "scene_objects must be in k..8"),
     (["--selector", "dynamic-radius"], "use network 'set'"),
     (["--address", "10.0.0.1:6379"], "address only applies to backend 'ray'"),
-    (["--object-size", "--network", "set"], "object_size is for the flat MLP"),
     (["--object-size", "yes"], "unrecognized arguments: yes"),
 ])
 def test_train_refuses_bad_flags(capsys, tmp_path, extra, message):

@@ -199,24 +199,24 @@ def test_replay_buffer_save_and_load_round_trip(tmp_path):
 
 
 # ------------------------------------------------------------------------------------------ set network
-def slots_present(obs: torch.Tensor) -> torch.Tensor:
+def slots_present(obs: torch.Tensor, width: int = SLOT_DIM) -> torch.Tensor:
     """Give every slot a valid one-hot (random observations would otherwise have garbage one-hots)."""
     obs = obs.clone()
-    n = (obs.shape[1] - ROBOT_DIM) // SLOT_DIM
+    n = (obs.shape[1] - ROBOT_DIM) // width
     for s in range(n):
         onehot = torch.zeros(obs.shape[0], 3)
         onehot[torch.arange(obs.shape[0]), torch.randint(0, 3, (obs.shape[0],))] = 1.0
-        obs[:, ROBOT_DIM + s * SLOT_DIM + 6:ROBOT_DIM + (s + 1) * SLOT_DIM] = onehot
+        obs[:, ROBOT_DIM + s * width + 6:ROBOT_DIM + s * width + 9] = onehot
     return obs
 
 
-def permute_slots(obs: torch.Tensor, order: list[int]) -> torch.Tensor:
-    slots = obs[:, ROBOT_DIM:].reshape(obs.shape[0], -1, SLOT_DIM)[:, order]
+def permute_slots(obs: torch.Tensor, order: list[int], width: int = SLOT_DIM) -> torch.Tensor:
+    slots = obs[:, ROBOT_DIM:].reshape(obs.shape[0], -1, width)[:, order]
     return torch.cat([obs[:, :ROBOT_DIM], slots.reshape(obs.shape[0], -1)], dim=1)
 
 
-def pad_slots(obs: torch.Tensor, extra: int) -> torch.Tensor:
-    return torch.cat([obs, torch.zeros(obs.shape[0], extra * SLOT_DIM)], dim=1)
+def pad_slots(obs: torch.Tensor, extra: int, width: int = SLOT_DIM) -> torch.Tensor:
+    return torch.cat([obs, torch.zeros(obs.shape[0], extra * width)], dim=1)
 
 
 def test_set_network_is_invariant_to_slot_order_and_padding():
@@ -233,6 +233,37 @@ def test_set_network_is_invariant_to_slot_order_and_padding():
         assert not torch.allclose(actor(obs[:, :observation_dim(2)]), a, atol=1e-4)
         # zero objects (robot part only) is a valid input
         assert actor(obs[:, :ROBOT_DIM]).shape == (6, ACT)
+
+
+def test_set_network_with_object_sizes_reads_the_radius_and_stays_invariant(tmp_path):
+    """With ``object_size`` a slot is 10 wide (the footprint radius last): the set network still ignores slot
+    order and zero padding, its NumPy actor agrees with torch, and a policy file round-trips only with the
+    metadata that says the slots are sized."""
+    from safemanip.rl.checkpoint import PolicyFileError, load_policy, save_policy
+
+    torch.manual_seed(11)
+    width = SLOT_DIM + 1
+    actor = SetActor(ACT, (32, 32), 16, object_size=True)
+    critic = SetCritic(ACT, (32, 32), 16, object_size=True)
+    obs = slots_present(torch.randn(6, observation_dim(3, object_size=True)), width)
+    obs[:, ROBOT_DIM + width - 1::width] = torch.rand(6, 3) * 0.1  # radii, 0-10 cm
+    act = torch.rand(6, ACT) * 2 - 1
+    with torch.no_grad():
+        a, q = actor(obs), critic(obs, act)
+        for variant in (permute_slots(obs, [2, 0, 1], width), pad_slots(obs, 3, width)):
+            torch.testing.assert_close(actor(variant), a, atol=1e-6, rtol=1e-5)
+            torch.testing.assert_close(critic(variant, act), q, atol=1e-6, rtol=1e-5)
+        bigger = obs.clone()
+        bigger[:, ROBOT_DIM + width - 1] += 0.05  # the first object grows by 5 cm: the action changes
+        assert not torch.allclose(actor(bigger), a, atol=1e-5)
+    meta = {"k": 3, "constraints": "conservative", "env_kwargs": {"object_size": True}}
+    save_policy(tmp_path / "sized.safetensors", actor_arrays(actor), meta)
+    np_actor, _ = load_policy(tmp_path / "sized.safetensors")
+    assert np_actor.slot_width == width
+    np.testing.assert_allclose(np_actor(pad_slots(obs, 2, width).numpy()), a.numpy(), atol=1e-5)
+    save_policy(tmp_path / "unsized.safetensors", actor_arrays(actor), {**meta, "env_kwargs": {}})
+    with pytest.raises(PolicyFileError, match="do not chain"):
+        load_policy(tmp_path / "unsized.safetensors")
 
 
 def test_numpy_actor_uses_the_env_observation_layout():

@@ -180,7 +180,7 @@ def test_train_runs_a_set_network_with_selection_aware_dynamic_k_and_records_it(
     from safemanip.rl.numpy_actor import NumpySetActor
     from safemanip.rl.train import train
 
-    cfg = TrainConfig(k=3, scene_objects=5, network="set", selector="dynamic-radius", set_embed=16,
+    cfg = TrainConfig(k=3, scene_objects=5, network="set", selector="dynamic-radius", set_embed=16, object_size=True,
                       hidden=(32, 32), batch_size=32, buffer_size=5000, learning_starts=256, random_steps=256,
                       eval_episodes=2, eval_every_s=60, checkpoint_every_s=60, log_every_s=60, envs_per_collector=2,
                       env_steps_per_update=4.0, max_episode_steps=40, minutes=0.12, out_dir=str(tmp_path / "run"))
@@ -190,6 +190,7 @@ def test_train_runs_a_set_network_with_selection_aware_dynamic_k_and_records_it(
     actor, meta = load_policy(run / "policy.safetensors")
     assert isinstance(actor, NumpySetActor) and meta["network"] == "set" and meta["k"] == 3
     assert meta["train_config"]["scene_objects"] == 5 and meta["env_kwargs"]["n_objects"] == 3  # eval sees a k=3 policy
+    assert meta["env_kwargs"]["object_size"] and actor.slot_width == 10  # slots carry the footprint radius
 
 
 def test_the_selection_aware_env_comes_from_the_closed_registry_only():

@@ -114,11 +114,12 @@ def run_demo(out_dir: str | Path = "demo_output", controller: str = "policy", po
         from safemanip.evaluation.registry import make_constraint_selector, make_object_selector
 
         k = int(meta["k"])
-        if n_objects < k:
+        set_network = actor.network == "set"  # takes fewer than k objects: its empty slots are masked out
+        if n_objects < k and not set_network:
             raise ValueError(f"the policy needs at least k={k} objects in the scene; use --n-objects {k} or more")
         from safemanip.rl.checkpoint import policy_object_size
 
-        reducer = Reducer(k, meta["constraints"], object_size=policy_object_size(meta))
+        reducer = Reducer(k, meta["constraints"], empty_slots=set_network, object_size=policy_object_size(meta))
         constraint_selector = make_constraint_selector("conservative" if meta["constraints"] == "conservative"
                                                        else "ground-truth")
         record_reset = {"done": False}

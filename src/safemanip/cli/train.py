@@ -20,8 +20,8 @@ FLAGS = {
     "--constraints": ("constraints", None, "conservative (all no_contact) or all (types drawn per episode)"),
     "--embodiment": ("embodiment", None, "panda (the 7-DoF Franka Panda, default) or hand (the idealised ablation)"),
     "--action-curve": ("action_curve", float_in(1, 4), "commanded speed = 1.7 m/s x |a|^curve (1: linear; default 2)"),
-    "--object-size": ("object_size", SWITCH, "each object slot also carries its footprint radius (flat MLP; not the "
-                                             "paper's layout)"),
+    "--object-size": ("object_size", SWITCH, "each object slot also carries its footprint radius (not the paper's "
+                                             "layout)"),
     "--total-env-steps": ("total_env_steps", int_in(1, 10**12), "budget in environment steps"),
     "--minutes": ("minutes", float_in(0, 525_600), "wall-clock budget in minutes (0: no time limit)"),
     "--seed": ("seed", SEED, "seed of everything random in the run"),

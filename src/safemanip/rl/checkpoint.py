@@ -265,7 +265,7 @@ def _checked_set_arrays(path: Path, tensors: dict[str, np.ndarray], meta: dict) 
     """The object-set actor's arrays (``set.net.{encoder,head}.{weights,biases}.{i}``, one head: (1, in, out) and
     (1, 1, out)), checked as ``load_policy`` checks a flat MLP: the keys, shapes that chain from a slot's
     features to the action, finite float weights, and ``act_dim``/``hidden`` of the metadata."""
-    from safemanip.rl.numpy_actor import ROBOT_DIM, SLOT_DIM
+    from safemanip.rl.numpy_actor import REL_DIM, ROBOT_DIM, SLOT_DIM
 
     counts = {part: sum(1 for k in tensors if k.startswith(f"set.net.{part}.weights.")) for part in ("encoder", "head")}
     expected = {f"set.net.{part}.{kind}.{i}" for part, n in counts.items() for i in range(n)
@@ -273,7 +273,10 @@ def _checked_set_arrays(path: Path, tensors: dict[str, np.ndarray], meta: dict) 
     if min(counts.values()) < 1 or set(tensors) != expected:
         raise PolicyFileError(f"{path}: expected the set actor's tensors set.net.encoder.weights.0, ... "
                               f"set.net.head.biases.{{n}}, got {sorted(tensors)[:8]}")
-    prev = SLOT_DIM + 3  # a slot's features: (pos, vel, one-hot) and the position relative to the held box
+    # a slot's features: (pos, vel, one-hot[, footprint radius]) and the position relative to the held box
+    env_kwargs = meta.get("env_kwargs")
+    sized = isinstance(env_kwargs, dict) and bool(env_kwargs.get("object_size", False))
+    prev = SLOT_DIM + (1 if sized else 0) + REL_DIM
     for part in ("encoder", "head"):
         for i in range(counts[part]):
             w, b = tensors[f"set.net.{part}.weights.{i}"], tensors[f"set.net.{part}.biases.{i}"]

@@ -218,9 +218,6 @@ class TrainConfig:
             if self.env != DEFAULT_ENV:
                 problems.append(f"scene_objects (selection-aware training) works on the {DEFAULT_ENV!r} env, "
                                 f"not {self.env!r}")
-        if self.object_size and self.network == "set":
-            problems.append("object_size is for the flat MLP so far (the set network's slot encoder reads 9 entries "
-                            "per slot): train the set network without --object-size")
         if self.selector == "dynamic-radius" and self.network != "set":
             problems.append("selector 'dynamic-radius' hands the policy a varying number of objects: use network 'set'")
         if self.address is not None:

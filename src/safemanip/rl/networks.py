@@ -12,8 +12,9 @@ Object-set networks (``network="set"``)
 ---------------------------------------
 The observation layout is the env's (``env/observation.py``): the robot part (ROBOT_DIM = 18: ee,
 bottom and top box positions and velocities) then any number of slots of SLOT_DIM = 9 (object
-position, velocity, constraint one-hot). A set network reads each slot with one shared encoder over
-(position, velocity, one-hot, position relative to the held box) and pools the encodings with a
+position, velocity, constraint one-hot), or 10 with ``object_size`` (the footprint radius last). A set
+network reads each slot with one shared encoder over (position, velocity, one-hot[, radius], position
+relative to the held box) and pools the encodings with a
 masked mean and a masked max, which do not depend on slot order. A slot whose one-hot is all zero is
 *absent* (a real object always has exactly one constraint type), so a k-object observation padded with
 zero slots to any width gives the same output as the unpadded one, and one network serves any k.
@@ -27,10 +28,10 @@ import numpy as np
 import torch
 from torch import nn
 
-from safemanip.env.observation import ROBOT_DIM, SLOT_DIM
+from safemanip.env.observation import ROBOT_DIM, slot_dim
 
 NETWORKS = ("mlp", "set")
-SLOT_FEATURES = SLOT_DIM + 3  # slot (pos, vel, one-hot) + position relative to the held (bottom) box
+REL_DIM = 3  # a slot's encoder also reads the object's position relative to the held (bottom) box
 BOTTOM_POS = slice(6, 9)  # the held box's position inside the robot part
 
 
@@ -98,10 +99,11 @@ class Critic(nn.Module):
 
 
 # ------------------------------------------------------------------------------------------ object set
-def split_slots(obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """(robot (B, 18), slot features (B, S, 12), present mask (B, S)) of a batch of observations."""
+def split_slots(obs: torch.Tensor, width: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(robot (B, 18), slot features (B, S, width + 3), present mask (B, S)) of a batch of observations
+    whose slots are ``width`` wide."""
     robot = obs[:, :ROBOT_DIM]
-    slots = obs[:, ROBOT_DIM:].reshape(obs.shape[0], -1, SLOT_DIM)
+    slots = obs[:, ROBOT_DIM:].reshape(obs.shape[0], -1, width)
     rel = slots[..., 0:3] - robot[:, None, BOTTOM_POS]
     return robot, torch.cat([slots, rel], dim=-1), slots[..., 6:9].sum(-1) > 0.5
 
@@ -110,18 +112,19 @@ class SetNet(nn.Module):
     """H heads of: a shared per-slot encoder, masked mean+max pooling, then an MLP over
     (robot state, pooled encoding, extra input such as the action). Output (H, B, out_dim)."""
 
-    def __init__(self, heads: int, extra_dim: int, out_dim: int, hidden: tuple[int, ...], embed: int):
+    def __init__(self, heads: int, extra_dim: int, out_dim: int, hidden: tuple[int, ...], embed: int,
+                 object_size: bool = False):
         super().__init__()
-        self.embed = embed
-        self.encoder = StackedMLP(heads, [SLOT_FEATURES, embed, embed], relu_last=True)
+        self.embed, self.slot_width = embed, slot_dim(object_size)
+        self.encoder = StackedMLP(heads, [self.slot_width + REL_DIM, embed, embed], relu_last=True)
         self.head = StackedMLP(heads, [ROBOT_DIM + 2 * embed + extra_dim, *hidden, out_dim])
 
     def forward(self, obs: torch.Tensor, extra: torch.Tensor | None = None, head: int | None = None) -> torch.Tensor:
-        robot, feats, mask = split_slots(obs)
+        robot, feats, mask = split_slots(obs, self.slot_width)
         batch, n_slots = mask.shape
         heads = self.head.heads if head is None else 1
         if n_slots:
-            enc = self.encoder(feats.reshape(batch * n_slots, SLOT_FEATURES), head).reshape(heads, batch, n_slots, -1)
+            enc = self.encoder(feats.reshape(batch * n_slots, feats.shape[-1]), head).reshape(heads, batch, n_slots, -1)
             present = mask[None, :, :, None]
             enc = enc.masked_fill(~present, 0.0)  # encodings are >= 0 (ReLU), so 0 never wins the max
             count = present.sum(2).clamp(min=1).to(enc.dtype)
@@ -135,30 +138,33 @@ class SetNet(nn.Module):
 
 
 class SetActor(nn.Module):
-    def __init__(self, act_dim: int, hidden: tuple[int, ...], embed: int):
+    def __init__(self, act_dim: int, hidden: tuple[int, ...], embed: int, object_size: bool = False):
         super().__init__()
-        self.net = SetNet(1, 0, act_dim, hidden, embed)
+        self.net = SetNet(1, 0, act_dim, hidden, embed, object_size)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         return torch.tanh(self.net(obs)[0])
 
 
 class SetCritic(nn.Module):
-    def __init__(self, act_dim: int, hidden: tuple[int, ...], embed: int, n_heads: int = 2):
+    def __init__(self, act_dim: int, hidden: tuple[int, ...], embed: int, n_heads: int = 2,
+                 object_size: bool = False):
         super().__init__()
-        self.q = SetNet(n_heads, act_dim, 1, hidden, embed)
+        self.q = SetNet(n_heads, act_dim, 1, hidden, embed, object_size)
 
     def forward(self, obs: torch.Tensor, act: torch.Tensor, head: int | None = None) -> torch.Tensor:
         return self.q(obs, act, head).squeeze(-1)
 
 
 def make_networks(network: str, obs_dim: int, act_dim: int, hidden: tuple[int, ...], n_heads: int,
-                  set_embed: int = 128) -> tuple[nn.Module, nn.Module]:
-    """(actor, critic) of the named kind; a set network accepts any number of slots (``obs_dim`` unused)."""
+                  set_embed: int = 128, object_size: bool = False) -> tuple[nn.Module, nn.Module]:
+    """(actor, critic) of the named kind; a set network accepts any number of slots (``obs_dim`` unused) of
+    the width ``object_size`` gives (a flat MLP's slots are inside ``obs_dim``)."""
     if network == "mlp":
         return Actor(obs_dim, act_dim, hidden), Critic(obs_dim, act_dim, hidden, n_heads)
     if network == "set":
-        return SetActor(act_dim, hidden, set_embed), SetCritic(act_dim, hidden, set_embed, n_heads)
+        return (SetActor(act_dim, hidden, set_embed, object_size),
+                SetCritic(act_dim, hidden, set_embed, n_heads, object_size))
     raise ValueError(f"network must be one of {NETWORKS}, got {network!r}")
 
 

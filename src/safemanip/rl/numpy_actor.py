@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 ROBOT_DIM, SLOT_DIM = 18, 9  # env/observation.py's layout (kept in step by a test; no env import here)
+REL_DIM = 3  # the set encoder's extra input: the object's position relative to the held box
 
 
 class NumpyActor:
@@ -48,7 +49,8 @@ def _stacked(arrays: dict[str, np.ndarray], prefix: str) -> list[tuple[np.ndarra
 
 class NumpySetActor:
     """The object-set actor (``networks.SetActor``) in NumPy: any number of slots, absent slots (all-zero
-    one-hot) masked out of the pooling."""
+    one-hot) masked out of the pooling. The slot width (9, or 10 with ``object_size``) is read off the
+    encoder's input width."""
 
     network = "set"
     obs_dim = None
@@ -61,6 +63,7 @@ class NumpySetActor:
         self.encoder = _stacked(self._arrays, "net.encoder.")
         self.head = _stacked(self._arrays, "net.head.")
         self.embed = self.encoder[-1][0].shape[1]
+        self.slot_width = self.encoder[0][0].shape[0] - REL_DIM
 
     def arrays(self) -> dict[str, np.ndarray]:
         return dict(self._arrays)
@@ -71,7 +74,7 @@ class NumpySetActor:
         x = np.atleast_2d(x)
         batch = x.shape[0]
         robot = x[:, :ROBOT_DIM]
-        slots = x[:, ROBOT_DIM:].reshape(batch, -1, SLOT_DIM)
+        slots = x[:, ROBOT_DIM:].reshape(batch, -1, self.slot_width)
         mask = slots[..., 6:9].sum(-1) > 0.5
         pooled = np.zeros((batch, 2 * self.embed), np.float32)
         if slots.shape[1]:
