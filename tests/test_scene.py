@@ -357,3 +357,51 @@ def test_scenes_built_from_the_cached_base_equal_scenes_built_from_scratch(embod
     builder._BASES.clear()
     scratch = builder.build_spec(names, robot).compile()
     assert _model_bytes(cached) == _model_bytes(scratch)
+
+
+def _placement_one_try_at_a_time(radii, rng, near_path_fraction, max_tries=1000):
+    """The sampler's rule drawn one try at a time (how it was written before it drew tries in batches)."""
+    from safemanip.scene.placement import _free, _keep_out_rects
+
+    n = len(radii)
+    n_near = int(round(near_path_fraction * n))
+    sx, sy = (float(v) for v in GEOMETRY.path_start_xy)
+    dx, dy = GEOMETRY.goal_xy[0] - sx, GEOMETRY.goal_xy[1] - sy
+    length = np.sqrt(dx * dx + dy * dy)
+    nx, ny = -dy / length, dx / length
+    tx, ty = GEOMETRY.table_half_extents
+    placed, xy, near = [], np.zeros((n, 2)), np.zeros(n, dtype=bool)
+    for rank, i in enumerate(np.argsort(-np.asarray(radii), kind="stable").tolist()):
+        want_near, r = rank < n_near, float(radii[i])
+        for attempt in range(2 * max_tries if want_near else max_tries):
+            near_try = want_near and attempt < max_tries
+            if near_try:
+                width = 0.14 if attempt < max_tries // 4 else 0.30
+                along, across = rng.uniform(0.05, 0.95), rng.uniform(-width, width)
+                x, y = sx + along * dx + across * nx, sy + along * dy + across * ny
+            else:
+                x, y = rng.uniform(-tx, tx), rng.uniform(-ty, ty)
+            if _free(x, y, r, placed, GEOMETRY, _keep_out_rects(GEOMETRY)):
+                break
+        placed.append((x, y, r))
+        xy[i], near[i] = (x, y), near_try
+    return xy, rng.uniform(-np.pi, np.pi, size=n), near
+
+
+def test_batched_placement_equals_drawing_one_try_at_a_time():
+    """The sampler draws its tries in batches for speed; it must give bit for bit the placements, and leave
+    the generator in the state, of drawing one try at a time (so a seed's scene never changes), also when
+    the corridor is crowded and objects fall back to the rest of the table."""
+    crowded = 0
+    for seed in range(300):
+        pick = np.random.default_rng(seed)
+        n = int(pick.integers(1, MAX_OBJECTS + 1))
+        radii = pick.choice(ALL_RADII if seed % 3 else np.sort(ALL_RADII)[-MAX_OBJECTS:], size=n, replace=False)
+        fraction = (0.0, 0.5, 1.0)[seed % 3]
+        a, b = np.random.default_rng(seed + 10_000), np.random.default_rng(seed + 10_000)
+        p = sample_placement(radii, a, fraction)
+        xy, yaw, near = _placement_one_try_at_a_time(radii, b, fraction)
+        assert np.array_equal(p.xy, xy) and np.array_equal(p.yaw, yaw) and np.array_equal(p.near_path, near), seed
+        assert a.bit_generator.state == b.bit_generator.state, seed
+        crowded += int(fraction == 1.0 and not near.all())
+    assert crowded > 0  # the fall-back path was exercised

@@ -79,6 +79,17 @@ def sample_placement(radii: np.ndarray, rng: np.random.Generator, near_path_frac
     nx, ny = -dy / length, dx / length
     tx, ty = geometry.table_half_extents
     keep_out = _keep_out_rects(geometry)
+    # two uniform draws u per try, mapped as rng.uniform(low, high) maps them (low + (high - low) * u, bit
+    # for bit), so the placements are those of drawing one try at a time
+    def corridor(width: float):
+        def to_xy(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            along, across = 0.05 + (0.95 - 0.05) * u[:, 0], -width + (width - -width) * u[:, 1]
+            return sx + along * dx + across * nx, sy + along * dy + across * ny
+        return to_xy
+
+    def anywhere(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return -tx + (tx - -tx) * u[:, 0], -ty + (ty - -ty) * u[:, 1]
+
     placed: list[tuple[float, float, float]] = []
     near = np.zeros(n, dtype=bool)
     order = np.argsort(-np.asarray(radii), kind="stable")  # big objects first: fewer rejections
@@ -86,22 +97,65 @@ def sample_placement(radii: np.ndarray, rng: np.random.Generator, near_path_frac
     for rank, i in enumerate(order.tolist()):
         want_near = rank < n_near
         r = float(radii[i])
-        # a near-path object whose corridor is full (even widened) goes anywhere free instead
-        for attempt in range(2 * max_tries if want_near else max_tries):
-            near_try = want_near and attempt < max_tries
-            if near_try:  # widen the corridor if it is crowded
-                width = 0.14 if attempt < max_tries // 4 else 0.30
-                along, across = rng.uniform(0.05, 0.95), rng.uniform(-width, width)
-                x, y = sx + along * dx + across * nx, sy + along * dy + across * ny
-            else:
-                x, y = rng.uniform(-tx, tx), rng.uniform(-ty, ty)
-            if _free(x, y, r, placed, geometry, keep_out):
+        # tries in the corridor (widened if it is crowded), then anywhere free if it is full even so
+        phases = [(max_tries // 4, corridor(0.14)), (max_tries - max_tries // 4, corridor(0.30)),
+                  (max_tries, anywhere)] if want_near else [(max_tries, anywhere)]
+        found = None
+        for tries, to_xy in phases:
+            found = _first_free(rng, tries, r, placed, geometry, keep_out, to_xy)
+            if found is not None:
+                near_try = to_xy is not anywhere
                 break
-        else:
+        if found is None:
             raise PlacementError(
                 f"could not place {n} objects without overlap ({len(placed)} fitted): reduce n_objects"
                 f" or choose smaller objects")
+        x, y = found
         placed.append((x, y, r))
         xy_out[i] = x, y
         near[i] = near_try
     return Placement(xy=xy_out, yaw=rng.uniform(-np.pi, np.pi, size=n), near_path=near)
+
+
+def _first_free(rng: np.random.Generator, tries: int, r: float, placed: list[tuple[float, float, float]],
+                geo: TaskGeometry, keep_out: list, to_xy) -> tuple[float, float] | None:
+    """The first of up to ``tries`` candidates (two uniform draws each, mapped to x, y by ``to_xy``)
+    that ``_free`` accepts, consuming exactly the draws a one-at-a-time loop would: the same placements
+    for the same generator state, several times faster.
+
+    Candidates are drawn in batches and screened with array maths that only rejects what is clearly
+    taken (a slack of 1e-9 m); the survivors are confirmed in order by ``_free``, the one rule. Only the
+    batch that holds the winner is partly used, so its draws are rewound and the used ones re-drawn.
+    """
+    done = 0
+    while done < tries:
+        batch = min(tries - done, 16 if done == 0 else 128)  # most objects fit within a few tries
+        state = rng.bit_generator.state
+        u = rng.random(2 * batch).reshape(batch, 2)  # (first, second) draw of each try, in draw order
+        xs, ys = to_xy(u)
+        for j in np.flatnonzero(_maybe_free(xs, ys, r, placed, geo, keep_out)).tolist():
+            x, y = float(xs[j]), float(ys[j])
+            if _free(x, y, r, placed, geo, keep_out):
+                rng.bit_generator.state = state
+                rng.random(2 * (j + 1))
+                return x, y
+        done += batch
+    return None
+
+
+def _maybe_free(xs: np.ndarray, ys: np.ndarray, r: float, placed: list[tuple[float, float, float]],
+                geo: TaskGeometry, keep_out: list, slack: float = 1e-9) -> np.ndarray:
+    """``_free``'s tests on arrays, each loosened by ``slack`` (m): a superset of what ``_free`` accepts.
+    Few, broadcast operations: on a batch of 16 tries NumPy's per-call overhead is the cost."""
+    tx, ty = geo.table_half_extents
+    ok = (np.abs(xs) <= tx - r - 0.03 + slack) & (np.abs(ys) <= ty - r - 0.03 + slack)
+    for xmin, xmax, ymin, ymax in keep_out:
+        ex, ey = xs - np.minimum(np.maximum(xs, xmin), xmax), ys - np.minimum(np.maximum(ys, ymin), ymax)
+        ok &= ex * ex + ey * ey >= (r + _CLEARANCE - slack) ** 2
+    gx, gy = geo.goal_xy
+    goal_clear = math.hypot(geo.box_half_extents[0], geo.box_half_extents[1]) + 0.01
+    # circles to stay out of: the goal's, then every placed object's (centre x, y, keep-out distance)
+    circles = np.array([(gx, gy, goal_clear + r)] + [(px, py, r + pr + _CLEARANCE) for px, py, pr in placed])
+    ex, ey = xs[:, None] - circles[:, 0], ys[:, None] - circles[:, 1]
+    ok &= (ex * ex + ey * ey >= (circles[:, 2] - slack) ** 2).all(axis=1)
+    return ok
