@@ -8,7 +8,8 @@ if it did nothing but integrate. "raw, no judge" is the same replay on the scene
 per-substep judge sensors and contact gap, so its difference to "raw" is what judging costs inside
 MuJoCo. The controller (the Panda's differential IK, the hand's set-point write) and the judge's Python
 side (one history gather and the substep margins) are timed separately, in microseconds per env step.
-Actions: the scripted controller plus noise, so episodes look like a rollout's. One process, one thread;
+Actions: the scripted controller plus noise, so episodes look like a rollout's. Resets are inside the env
+rate (a rollout pays them too) and also shown alone ("reset ms", per reset). One process, one thread;
 medians over interleaved repeats.
 """
 
@@ -36,7 +37,7 @@ def _physics_state(model, data) -> np.ndarray:
 
 
 def env_rate(env: SlideOutEnv, steps: int, rng):
-    """(env steps/s, mean episode length, ctrl per step, act per step, episode start states)."""
+    """(env steps/s, mean episode length, ms per reset, ctrl per step, act per step, episode start states)."""
     controller = ScriptedController()
     noise = rng.normal(0, 0.3, (steps, 3))
     ctrls = np.zeros((steps, env.model.nu))
@@ -44,13 +45,15 @@ def env_rate(env: SlideOutEnv, steps: int, rng):
     _, info = env.reset(seed=int(rng.integers(1 << 30)))
     controller.reset()
     starts = {0: _physics_state(env.model, env.data)}
-    elapsed = 0.0
+    elapsed = resetting = 0.0
     for i in range(steps):
         action = np.clip(controller.act(info, env) + noise[i], -1, 1)  # the controller is not timed
         t0 = time.perf_counter()
         _, _, term, trunc, info = env.step(action)
         if term or trunc:
+            t1 = time.perf_counter()
             _, info = env.reset()
+            resetting += time.perf_counter() - t1
         elapsed += time.perf_counter() - t0
         # what the embodiment commanded for this step (read back from the state the step started from)
         ctrls[i] = env._bench_ctrl
@@ -58,7 +61,8 @@ def env_rate(env: SlideOutEnv, steps: int, rng):
         if term or trunc:
             controller.reset()
             starts[i + 1] = _physics_state(env.model, env.data)
-    return steps / elapsed, steps / len(starts), ctrls, acts, starts
+    resets = len(starts) - 1
+    return steps / elapsed, steps / len(starts), 1e3 * resetting / max(resets, 1), ctrls, acts, starts
 
 
 def raw_rate(model, data, ctrls, acts, starts, n_substeps) -> float:
@@ -125,11 +129,12 @@ def main() -> None:
                                   judge=False).compile()
                 bare_data = mujoco.MjData(bare)
                 rng = np.random.default_rng(0)
-                envs, raws, bares, lengths = [], [], [], []
+                envs, raws, bares, lengths, reset_ms = [], [], [], [], []
                 for _ in range(args.repeats):
-                    rate, length, ctrls, acts, starts = env_rate(env, args.steps, rng)
+                    rate, length, reset, ctrls, acts, starts = env_rate(env, args.steps, rng)
                     envs.append(rate)
                     lengths.append(length)
+                    reset_ms.append(reset)
                     raws.append(raw_rate(env.model, env.data, ctrls, acts, starts, env.n_substeps))
                     bare_starts = {}
                     for i, s in starts.items():  # same qpos/qvel/act, the bare model has no sensor history
@@ -143,12 +148,12 @@ def main() -> None:
                 controller_us, judge_us = component_costs(env)
                 e, r, b = statistics.median(envs), statistics.median(raws), statistics.median(bares)
                 rows.append((embodiment, n, "on" if sleep else "off", e, r, e / r, b, controller_us, judge_us,
-                             statistics.median(lengths)))
+                             statistics.median(lengths), statistics.median(reset_ms)))
     print(f"{'robot':>6} {'N':>2} {'sleep':>5} {'env steps/s':>11} {'raw physics':>11} {'ratio':>5} "
-          f"{'raw, no judge':>13} {'controller us':>13} {'judge us':>8} {'ep. len':>7}")
-    for robot, n, s, e, r, ratio, b, c, j, length in rows:
+          f"{'raw, no judge':>13} {'controller us':>13} {'judge us':>8} {'ep. len':>7} {'reset ms':>8}")
+    for robot, n, s, e, r, ratio, b, c, j, length, reset in rows:
         print(f"{robot:>6} {n:>2} {s:>5} {e:>11.0f} {r:>11.0f} {ratio:>5.2f} {b:>13.0f} {c:>13.1f} {j:>8.1f} "
-              f"{length:>7.1f}")
+              f"{length:>7.1f} {reset:>8.2f}")
 
 
 if __name__ == "__main__":
