@@ -235,6 +235,7 @@ TRAIN = ["train", "--no-progress"]
     (["--selector", "dynamic-radius"], "use network 'set'"),
     (["--address", "10.0.0.1:6379"], "address only applies to backend 'ray'"),
     (["--object-size", "yes"], "unrecognized arguments: yes"),
+    (["--init-from", "no/such/run"], "no complete checkpoint there"),
 ])
 def test_train_refuses_bad_flags(capsys, tmp_path, extra, message):
     assert_refused(capsys, TRAIN + ["--out", tmp_path / "run"] + extra, message)

@@ -390,3 +390,39 @@ def test_learner_update_equals_a_plain_td3_step_with_separate_critics():
         for h, sep in enumerate(seps):
             for lin, w in zip([m for m in sep if isinstance(m, torch.nn.Linear)], stacked.weights):
                 torch.testing.assert_close(w[h].T, lin.weight, atol=1e-5, rtol=1e-4)
+
+
+def test_init_from_takes_a_runs_networks_and_refuses_one_that_does_not_fit(tmp_path):
+    """``init_from`` (fine-tuning) loads the source checkpoint's actor, critics and targets, not its optimiser
+    moments; a source with another k or network, or no checkpoint, is refused with the reason."""
+    from safemanip.rl.checkpoint import write_checkpoint
+    from safemanip.rl.train import warm_start
+    from safemanip.util.files import atomic_write_text
+
+    torch.manual_seed(12)
+    source_cfg = TrainConfig(**SMALL, k=2, object_size=True, out_dir=str(tmp_path / "source"))
+    source = Learner(observation_dim(2, True), ACT, source_cfg)
+    b = batch(16, observation_dim(2, True))
+    source.update(b, 0.99)
+    (tmp_path / "source").mkdir()
+    atomic_write_text(tmp_path / "source" / "config.json", source_cfg.to_json())
+    write_checkpoint(tmp_path / "source", source.state_tensors(), ReplayBuffer(10, observation_dim(2, True), ACT),
+                     {"updates": 1, "env_steps": 16, "elapsed_s": 3.0})
+
+    cfg = TrainConfig(**SMALL, k=2, object_size=True, scene_objects=4, learning_rate=3e-4,
+                      init_from=str(tmp_path / "source"))
+    networks, provenance = warm_start(cfg)
+    assert provenance == {"run": str(tmp_path / "source"), "env_steps": 16, "updates": 1, "elapsed_s": 3.0}
+    assert not any(k.startswith(("actor_opt", "critic_opt")) for k in networks)
+    learner = Learner(observation_dim(2, True), ACT, cfg)
+    learner.load_state_tensors(networks)
+    assert same(params(learner.actor), params(source.actor)) and same(params(learner.critic), params(source.critic))
+    assert not learner.critic_opt.state  # fresh moments
+    learner.update(b, 0.99)  # and it trains on
+
+    with pytest.raises(ConfigError, match="k is 2 there but 3 here"):
+        warm_start(TrainConfig(**SMALL, k=3, object_size=True, init_from=str(tmp_path / "source")))
+    with pytest.raises(ConfigError, match="network is 'mlp' there but 'set' here"):
+        warm_start(TrainConfig(**SMALL, k=2, object_size=True, network="set", init_from=str(tmp_path / "source")))
+    with pytest.raises(ConfigError, match="no complete checkpoint"):
+        warm_start(TrainConfig(**SMALL, init_from=str(tmp_path / "nowhere")))

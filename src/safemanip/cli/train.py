@@ -26,6 +26,8 @@ FLAGS = {
     "--minutes": ("minutes", float_in(0, 525_600), "wall-clock budget in minutes (0: no time limit)"),
     "--seed": ("seed", SEED, "seed of everything random in the run"),
     "--out": ("out_dir", None, "run folder (checkpoints, logs, policies)"),
+    "--init-from": ("init_from", None, "start from the networks of this run folder's checkpoint (fine-tuning; "
+                                      "k, network, sizes, embodiment must match)"),
     "--gamma": ("gamma", float_in(0, 1), "discount factor, in (0, 1)"),
     "--gamma-start": ("gamma_start", float_in(0, 1), "anneal gamma from this value over the first half of the budget"),
     "--learning-rate-final": ("learning_rate_final", float_in(0, 1, lo_open=True),

@@ -115,6 +115,10 @@ class TrainConfig:
     """dynamic-radius: horizontal distance from the held box's centre [m] within which objects are picked."""
     selection_interval: int = 4
     """Control steps between re-selections during selection-aware training (the paper's 4)."""
+    init_from: str | None = None
+    """A finished or interrupted run folder whose checkpoint's networks (actor, critics and their targets)
+    start this run: fine-tuning, e.g. a policy trained at N = k continued in larger scenes. The optimiser
+    state and replay buffer start afresh; k, network, sizes, embodiment and action curve must match."""
     backend: str = "local"
     """Rollout workers as local processes ('local') or Ray actors ('ray'); the learner stays in this process."""
     address: str | None = None
@@ -220,6 +224,8 @@ class TrainConfig:
                                 f"not {self.env!r}")
         if self.selector == "dynamic-radius" and self.network != "set":
             problems.append("selector 'dynamic-radius' hands the policy a varying number of objects: use network 'set'")
+        if self.init_from is not None and (not self.init_from.strip() or len(self.init_from) > 4096):
+            problems.append(f"init_from must be a run folder, got {self.init_from!r}")
         if self.address is not None:
             if self.backend != "ray":
                 problems.append("address only applies to backend 'ray'")

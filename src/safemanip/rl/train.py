@@ -86,8 +86,9 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True, command
     problems = check_output_dir(run_dir, "--resume" if resume else "--out")
     if problems:
         raise ConfigError(problems[0])
-    with OutputLock(run_dir, "--resume" if resume else "--out"):
-        return _train_locked(cfg, run_dir, resume, progress, command)
+    warm = None if resume else warm_start(cfg)  # checked before the run folder exists; a resumed run's
+    with OutputLock(run_dir, "--resume" if resume else "--out"):  # checkpoint already holds its start
+        return _train_locked(cfg, run_dir, resume, progress, command, warm)
 
 
 def truncate_logs(run_dir: Path, env_steps: int) -> None:
@@ -123,7 +124,37 @@ def truncate_logs(run_dir: Path, env_steps: int) -> None:
             os.replace(best, run_dir / f"best.discarded-{best_steps}.safetensors")
 
 
-def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool, command: str | None) -> Path:
+WARM_START_FIELDS = ("algorithm", "k", "network", "set_embed", "hidden", "twin_critics", "object_size", "embodiment",
+                     "action_curve")
+"""What a run started from another run's networks must share with it: the networks' shapes and the meaning of
+their inputs and outputs. Scenes (scene_objects, selector), budgets and learning rates may differ."""
+NETWORK_PARTS = ("actor", "critic", "actor_targ", "critic_targ")
+
+
+def warm_start(cfg: TrainConfig) -> tuple[dict, dict] | None:
+    """(network tensors, provenance) from the newest checkpoint of ``cfg.init_from``, checked against ``cfg``
+    before anything is written; None without ``init_from``."""
+    if cfg.init_from is None:
+        return None
+    source = Path(cfg.init_from)
+    checkpoint = find_checkpoint(source) if source.is_dir() else None
+    if checkpoint is None:
+        raise ConfigError(f"--init-from {source}: no complete checkpoint there; give a training run's folder "
+                          f"(the --out of an earlier safemanip train)")
+    src = TrainConfig.from_file(source / "config.json")
+    differ = [f"{name} is {getattr(src, name)!r} there but {getattr(cfg, name)!r} here" for name in WARM_START_FIELDS
+              if getattr(src, name) != getattr(cfg, name)]
+    if differ:
+        raise ConfigError(f"--init-from {source}: its networks do not fit this run ({'; '.join(differ)}); "
+                          f"train with the source run's values")
+    tensors, _, meta = read_checkpoint(checkpoint)
+    networks = {k: v for k, v in tensors.items() if k.split(".")[0] in NETWORK_PARTS}
+    return networks, {"run": str(source), "env_steps": meta["env_steps"], "updates": meta["updates"],
+                      "elapsed_s": round(meta["elapsed_s"], 1)}
+
+
+def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool, command: str | None,
+                  warm: tuple[dict, dict] | None = None) -> Path:
     checkpoint = recover_checkpoint(run_dir) if resume else None
     if resume and checkpoint is None:
         raise ConfigError(f"--resume: no complete checkpoint in {run_dir}; start a new run without --resume")
@@ -160,7 +191,13 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
         truncate_logs(run_dir, env_steps)
         print(f"resuming {run_dir} from {env_steps} env steps / {updates} updates ({elapsed_before / 60:.1f} min)")
     else:
-        for stale in ("scalars.csv", "evals.jsonl", "summary.json"):  # leftovers of a run killed before its first checkpoint
+        if warm is not None:
+            learner.load_state_tensors(warm[0])  # networks only: fresh optimiser moments, empty replay buffer
+            atomic_write_text(run_dir / "init_from.json", json.dumps(warm[1], indent=1))  # survives --resume
+            print(f"networks from {warm[1]['run']} ({warm[1]['updates']} updates, {warm[1]['env_steps']} env steps, "
+                  f"{warm[1]['elapsed_s'] / 60:.1f} min of training before this run)")
+        # leftovers of a run killed before its first checkpoint
+        for stale in ("scalars.csv", "evals.jsonl", "summary.json") + (() if warm else ("init_from.json",)):
             (run_dir / stale).unlink(missing_ok=True)
         shutil.rmtree(run_dir / "tb", ignore_errors=True)
 
@@ -296,5 +333,7 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
         summary = {"env_steps": env_steps, "updates": updates, "wall_s": round(elapsed(), 1),
                    "final_eval": last_eval_result, "best_eval": best, "interrupted": interrupted,
                    "learner": learner.precision.as_dict()}
+        if (run_dir / "init_from.json").exists():  # whose networks this run started from: count its training too
+            summary["init_from"] = json.loads((run_dir / "init_from.json").read_text())
         atomic_write_text(run_dir / "summary.json", json.dumps(summary, indent=1))
     return run_dir
