@@ -274,9 +274,7 @@ def _checked_set_arrays(path: Path, tensors: dict[str, np.ndarray], meta: dict) 
         raise PolicyFileError(f"{path}: expected the set actor's tensors set.net.encoder.weights.0, ... "
                               f"set.net.head.biases.{{n}}, got {sorted(tensors)[:8]}")
     # a slot's features: (pos, vel, one-hot[, footprint radius]) and the position relative to the held box
-    env_kwargs = meta.get("env_kwargs")
-    sized = isinstance(env_kwargs, dict) and bool(env_kwargs.get("object_size", False))
-    prev = SLOT_DIM + (1 if sized else 0) + REL_DIM
+    prev = SLOT_DIM + (1 if policy_object_size(meta) else 0) + REL_DIM
     for part in ("encoder", "head"):
         for i in range(counts[part]):
             w, b = tensors[f"set.net.{part}.weights.{i}"], tensors[f"set.net.{part}.biases.{i}"]
@@ -334,8 +332,10 @@ def policy_action_curve(meta: dict) -> float:
 
 
 def policy_object_size(meta: dict) -> bool:
-    """Whether a (checked) policy's slots carry the footprint radius; policies from before the option: no."""
-    return bool(meta["env_kwargs"].get("object_size", False))
+    """Whether a policy's slots carry the footprint radius; policies from before the option (or without
+    env_kwargs, as the set actor's weight check may see them): no."""
+    env_kwargs = meta.get("env_kwargs")
+    return isinstance(env_kwargs, dict) and bool(env_kwargs.get("object_size", False))
 
 
 def _refuse_constant(name: str):

@@ -29,9 +29,9 @@ import torch
 from torch import nn
 
 from safemanip.env.observation import ROBOT_DIM, slot_dim
+from safemanip.rl.numpy_actor import REL_DIM  # a slot's encoder also reads the position relative to the held box
 
 NETWORKS = ("mlp", "set")
-REL_DIM = 3  # a slot's encoder also reads the object's position relative to the held (bottom) box
 BOTTOM_POS = slice(6, 9)  # the held box's position inside the robot part
 
 

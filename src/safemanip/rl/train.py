@@ -191,15 +191,15 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
         truncate_logs(run_dir, env_steps)
         print(f"resuming {run_dir} from {env_steps} env steps / {updates} updates ({elapsed_before / 60:.1f} min)")
     else:
+        # leftovers of a run killed before its first checkpoint
+        for stale in ("scalars.csv", "evals.jsonl", "summary.json", "init_from.json"):
+            (run_dir / stale).unlink(missing_ok=True)
+        shutil.rmtree(run_dir / "tb", ignore_errors=True)
         if warm is not None:
             learner.load_state_tensors(warm[0])  # networks only: fresh optimiser moments, empty replay buffer
             atomic_write_text(run_dir / "init_from.json", json.dumps(warm[1], indent=1))  # survives --resume
             print(f"networks from {warm[1]['run']} ({warm[1]['updates']} updates, {warm[1]['env_steps']} env steps, "
                   f"{warm[1]['elapsed_s'] / 60:.1f} min of training before this run)")
-        # leftovers of a run killed before its first checkpoint
-        for stale in ("scalars.csv", "evals.jsonl", "summary.json") + (() if warm else ("init_from.json",)):
-            (run_dir / stale).unlink(missing_ok=True)
-        shutil.rmtree(run_dir / "tb", ignore_errors=True)
 
     # ---- rollout workers on the other core(s): local processes (dying with this one) or Ray actors
     pool = make_pool(cfg, cfg.rollout_env_kwargs, cfg.seed + 1000 * restarts, env_steps, updates)
