@@ -232,6 +232,7 @@ TRAIN = ["train", "--no-progress"]
     (["--selection-radius", "nan"], "argument --selection-radius"),
     (["--scene-objects", "99"], "argument --scene-objects"),
     (["--k", "4", "--scene-objects", "2"], "scene_objects must be in k..8"),
+    (["--k", "4", "--scene-objects-min", "5"], "scene_objects_min must be in 1..4"),
     (["--selector", "dynamic-radius"], "use network 'set'"),
     (["--address", "10.0.0.1:6379"], "address only applies to backend 'ray'"),
     (["--object-size", "yes"], "unrecognized arguments: yes"),

@@ -153,6 +153,47 @@ def test_dynamic_radius_training_env_leaves_absent_slots_empty():
         assert np.linalg.norm(env.env.scene_state().obj_pos[i, :2] - box[:2]) <= 0.3
 
 
+def test_mixed_clutter_draws_each_scene_size_pads_flat_slots_with_dummies_and_is_reproducible():
+    from safemanip.selection.reducer import DUMMY_POSITIONS
+
+    cfg = TrainConfig(k=4, scene_objects_min=2, max_episode_steps=30)
+    env, again = make_env(cfg.rollout_env_kwargs), make_env(cfg.rollout_env_kwargs)
+    sizes = []
+    for episode in range(24):
+        seed = 5 if episode == 0 else None  # seeded once, as a rollout worker does
+        obs, info = env.reset(seed=seed)
+        obs_again, _ = again.reset(seed=seed)
+        np.testing.assert_array_equal(obs, obs_again)  # the same stream of scene sizes and scenes
+        n = len(info["names"])
+        sizes.append(n)
+        assert obs.shape == (observation_dim(4),) and len(env.env.names) == n
+        slots = obs[ROBOT_DIM:].reshape(4, SLOT_DIM)
+        if n < 4:  # the flat MLP's empty slots hold far-away dummies, standing still, typed no_contact
+            dummies = slots[n:]
+            np.testing.assert_allclose(np.sort(dummies[:, 0]), np.sort(DUMMY_POSITIONS[:4 - n, 0]), atol=1e-6)
+            assert np.all(dummies[:, 3:6] == 0) and np.all(dummies[:, 6:9] == [1, 0, 0])
+    assert set(sizes) == {2, 3, 4}  # every size from scene_objects_min to k comes up
+    # a set network gets absent (all-zero) slots instead
+    sparse = make_env(TrainConfig(k=4, scene_objects_min=1, network="set").rollout_env_kwargs)
+    for seed in range(20):
+        obs, info = sparse.reset(seed=seed)
+        n = len(info["names"])
+        if n < 4:
+            assert np.all(obs[ROBOT_DIM + n * SLOT_DIM:] == 0)
+            break
+    else:
+        raise AssertionError("no sparse scene in 20 draws")
+
+
+def test_config_rejects_mixed_clutter_outside_one_to_the_largest_scene():
+    from safemanip.rl.config import ConfigError
+
+    with pytest.raises(ConfigError, match="scene_objects_min must be in 1..4"):
+        TrainConfig(k=4, scene_objects_min=5)
+    with pytest.raises(ConfigError, match="scene_objects_min must be in 1..6"):
+        TrainConfig(k=2, scene_objects=6, scene_objects_min=0)
+
+
 def test_object_size_reaches_the_env_and_the_selection_aware_reducer():
     plain, sized = TrainConfig(k=2), TrainConfig(k=2, object_size=True)
     assert plain.env_kwargs["object_size"] is False and sized.env_kwargs["object_size"] is True

@@ -45,6 +45,8 @@ FLAGS = {
     "--network": ("network", None, "flat MLP (the paper's, fixed k) or object-set network (any number of objects)"),
     "--scene-objects": ("scene_objects", int_in(0, 8), "selection-aware training: N objects per scene (N >= k); "
                                                        "the selector picks the policy's k"),
+    "--scene-objects-min": ("scene_objects_min", int_in(1, 8), "mixed clutter: each episode's N is drawn from this "
+                                                               "to --scene-objects (or k); empty slots are padded"),
     "--selector": ("selector", None, "object selector for selection-aware training (dynamic-radius needs "
                                      "--network set)"),
     "--selection-radius": ("selection_radius", float_in(0, 10, lo_open=True), "dynamic-radius: radius around the "

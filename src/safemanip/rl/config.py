@@ -108,6 +108,11 @@ class TrainConfig:
     scene_objects: int | None = None
     """Selection-aware training: objects in each training scene (N >= k); the object selector picks the
     policy's k slots every ``selection_interval`` steps and the judge covers all N. None: N = k."""
+    scene_objects_min: int | None = None
+    """Mixed clutter: each training episode draws N uniformly from ``scene_objects_min`` to ``scene_objects``
+    (or k), so sparse scenes, where the task is learnt quickly, keep teaching the dense ones. Slots a scene
+    with N < k cannot fill are padded as at deployment: far-away dummy objects for the flat MLP, absent
+    (masked) slots for the set network. None: every scene holds the same N."""
     selector: str = "dynamic-knn"
     """Object selector for selection-aware training: 'dynamic-knn' (k nearest) or 'dynamic-radius' (every
     object within ``selection_radius``, at most k; needs network='set')."""
@@ -222,6 +227,13 @@ class TrainConfig:
             if self.env != DEFAULT_ENV:
                 problems.append(f"scene_objects (selection-aware training) works on the {DEFAULT_ENV!r} env, "
                                 f"not {self.env!r}")
+        if self.scene_objects_min is not None:
+            most = self.scene_objects or self.k
+            if not 1 <= self.scene_objects_min <= most:
+                problems.append(f"scene_objects_min must be in 1..{most} (the scene_objects, or k, it mixes up to), "
+                                f"got {self.scene_objects_min}")
+            if self.env != DEFAULT_ENV:
+                problems.append(f"scene_objects_min (mixed clutter) works on the {DEFAULT_ENV!r} env, not {self.env!r}")
         if self.selector == "dynamic-radius" and self.network != "set":
             problems.append("selector 'dynamic-radius' hands the policy a varying number of objects: use network 'set'")
         if self.init_from is not None and (not self.init_from.strip() or len(self.init_from) > 4096):
@@ -235,8 +247,10 @@ class TrainConfig:
 
     @property
     def selection_aware(self) -> bool:
-        """Training scenes hold more objects than the policy's slots, or the slots vary (dynamic-radius)."""
-        return self.env == DEFAULT_ENV and (self.scene_objects is not None or self.selector == "dynamic-radius")
+        """Training scenes hold more objects than the policy's slots, a varying number of them (mixed clutter),
+        or the slots vary (dynamic-radius)."""
+        return self.env == DEFAULT_ENV and (self.scene_objects is not None or self.scene_objects_min is not None
+                                            or self.selector == "dynamic-radius")
 
     @property
     def rollout_env_kwargs(self) -> dict:
@@ -245,8 +259,11 @@ class TrainConfig:
         (its factory is ``selection.training_env.SelectedSlotsEnv``, registered by that layer)."""
         if not self.selection_aware:
             return self.env_kwargs
-        return {**self.env_kwargs, "env": SELECTED_ENV, "n_objects": self.scene_objects or self.k, "k": self.k,
-                "selector": self.selector, "radius": self.selection_radius, "interval": self.selection_interval}
+        kwargs = {**self.env_kwargs, "env": SELECTED_ENV, "n_objects": self.scene_objects or self.k, "k": self.k,
+                  "selector": self.selector, "radius": self.selection_radius, "interval": self.selection_interval}
+        if self.scene_objects_min is not None:
+            kwargs.update(min_objects=self.scene_objects_min, empty_slots=self.network == "set")
+        return kwargs
 
     @property
     def env_kwargs(self) -> dict:

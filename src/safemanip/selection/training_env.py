@@ -4,9 +4,10 @@
 rewards cover every object) and gives the policy the k-slot observation deployment would give it:
 an object selector (``dynamic-knn`` or ``dynamic-radius``) re-picks on its schedule (every 4 control
 steps by default), and the ``Reducer`` builds s_rel from the picked objects, nearest to the held box
-first, exactly as ``evaluation/episode.py`` does at test time. Constraint one-hots are the env's own
-(the ground-truth constraint selector of training scenes); a ``conservative`` policy sees
-``no_contact`` everywhere, as in the reducer.
+first, exactly as ``evaluation/episode.py`` does at test time. With mixed clutter (``min_objects``)
+each episode draws its N, and slots a sparse scene cannot fill are padded as deployment pads them.
+Constraint one-hots are the env's own (the ground-truth constraint selector of training scenes); a
+``conservative`` policy sees ``no_contact`` everywhere, as in the reducer.
 
 Why it lives here: ``selection`` sits above ``env`` and beside ``rl``; ``rl`` imports nothing from
 ``selection``, and this module takes only the registry's ``register_env`` from ``rl``. The env
@@ -36,17 +37,33 @@ class SelectedSlotsEnv(gym.Env):
 
     def __init__(self, k: int, n_objects: int, selector: str = "dynamic-knn", radius: float = DEFAULT_RADIUS,
                  interval: int = DEFAULT_INTERVAL, constraints: str = "conservative", slot_order: str | None = None,
-                 object_size: bool = False, **env_kwargs):
+                 object_size: bool = False, min_objects: int | None = None, empty_slots: bool | None = None,
+                 **env_kwargs):
+        """``min_objects``: mixed clutter, each episode's scene holds N drawn uniformly from ``min_objects`` to
+        ``n_objects``. ``empty_slots``: slots no object fills are left all zero (absent, for a set network);
+        otherwise they hold far-away dummy objects, as ``--pad`` gives a flat policy at deployment. Default:
+        empty for ``dynamic-radius``, whose picks vary in number."""
         if selector not in TRAINING_SELECTORS:
             raise ValueError(f"selector must be one of {sorted(TRAINING_SELECTORS)}, got {selector!r}")
+        fewest = n_objects if min_objects is None else int(min_objects)
+        if min_objects is not None and not 1 <= fewest <= n_objects:
+            raise ValueError(f"min_objects must be in 1..n_objects ({n_objects}), got {min_objects}")
         if not 0 <= k <= n_objects and selector == "dynamic-knn":
             raise ValueError(f"dynamic-knn needs k <= N, got k={k}, N={n_objects}")
         del slot_order  # the reducer orders the slots (nearest first), as at deployment
-        self.env = SlideOutEnv(n_objects=n_objects, constraints=constraints, object_size=object_size, **env_kwargs)
         self.k = int(k)
-        # a varying number of picks leaves slots empty: zeros, which a set network masks out
+        self.scene_sizes = list(range(fewest, n_objects + 1))
+        """The numbers of objects a scene may hold (one, unless mixed clutter)."""
+        # one env per scene size, each with its compiled models; built when first drawn
+        self._make_env = lambda n: SlideOutEnv(n_objects=n, constraints=constraints, object_size=object_size,
+                                               **env_kwargs)
+        self._envs = {n_objects: self._make_env(n_objects)}
+        self.env = self._envs[n_objects]
+        empty = selector == "dynamic-radius" if empty_slots is None else bool(empty_slots)
+        # a varying number of picks (or objects) leaves slots to fill: zeros, which a set network masks out, or
+        # dummies far from the path for a flat policy
         self.reducer = Reducer(self.k, "all" if constraints == "random" else "conservative",
-                               empty_slots=selector == "dynamic-radius", object_size=self.env.object_size)
+                               pad=not empty and fewest < self.k, empty_slots=empty, object_size=self.env.object_size)
         self.selector = TRAINING_SELECTORS[selector](interval, radius)
         self.builder = EnvViewBuilder()
         self.observation_space = observation_space(self.k, self.env.object_size)
@@ -63,6 +80,15 @@ class SelectedSlotsEnv(gym.Env):
         return self.reducer(state, self.selected, self.env.constraints)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if len(self.scene_sizes) > 1:
+            # mixed clutter: this env's generator draws the scene size and the scene's seed, so a seeded
+            # stream of episodes is reproducible whichever sizes come up
+            super().reset(seed=seed)
+            n = self.scene_sizes[int(self.np_random.integers(len(self.scene_sizes)))]
+            if n not in self._envs:
+                self._envs[n] = self._make_env(n)
+            self.env = self._envs[n]
+            seed = int(self.np_random.integers(1 << 31))
         _, info = self.env.reset(seed=seed, options=options)
         self.builder.reset(self.env)
         return self._observe(0), info
@@ -72,7 +98,8 @@ class SelectedSlotsEnv(gym.Env):
         return self._observe(info["t"]), reward, terminated, truncated, info
 
     def close(self):
-        self.env.close()
+        for env in self._envs.values():
+            env.close()
 
 
 register_env(SELECTED_ENV, SelectedSlotsEnv)
