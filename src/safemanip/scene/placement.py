@@ -123,8 +123,9 @@ def _first_free(rng: np.random.Generator, tries: int, r: float, placed: list[tup
     that ``_free`` accepts, consuming exactly the draws a one-at-a-time loop would: the same placements
     for the same generator state, several times faster.
 
-    Candidates are drawn in batches and screened with array maths that only rejects what is clearly
-    taken (a slack of 1e-9 m); the survivors are confirmed in order by ``_free``, the one rule. Only the
+    Candidates are drawn in batches; after the first (small) one, a batch is screened with array maths that
+    only rejects what is clearly taken (a slack of 1e-9 m), and the survivors are confirmed in order by
+    ``_free``, the one rule. Only the
     batch that holds the winner is partly used, so its draws are rewound and the used ones re-drawn.
     """
     done = 0
@@ -133,8 +134,12 @@ def _first_free(rng: np.random.Generator, tries: int, r: float, placed: list[tup
         state = rng.bit_generator.state
         u = rng.random(2 * batch).reshape(batch, 2)  # (first, second) draw of each try, in draw order
         xs, ys = to_xy(u)
-        for j in np.flatnonzero(_maybe_free(xs, ys, r, placed, geo, keep_out)).tolist():
-            x, y = float(xs[j]), float(ys[j])
+        # a first small batch is checked directly (the winner is usually among its first tries, and
+        # NumPy's per-call overhead would cost more); later, crowded batches are screened first
+        candidates = range(batch) if done == 0 else np.flatnonzero(_maybe_free(xs, ys, r, placed, geo, keep_out))
+        xl, yl = xs.tolist(), ys.tolist()
+        for j in candidates:
+            x, y = xl[j], yl[j]
             if _free(x, y, r, placed, geo, keep_out):
                 rng.bit_generator.state = state
                 rng.random(2 * (j + 1))
