@@ -12,7 +12,7 @@ import pytest
 
 from safemanip.env.observation import ROBOT_DIM, SLOT_DIM, observation_dim
 from safemanip.rl.collector import CHUNK, TRANSITION_KEYS, LocalPool, RayPool, RolloutWorker
-from safemanip.rl.config import TrainConfig
+from safemanip.rl.config import ConfigError, TrainConfig
 from safemanip.rl.envs import make_env
 import safemanip.selection.training_env  # noqa: F401  registers the selection-aware env (as safemanip train does)
 
@@ -64,6 +64,42 @@ def test_per_episode_noise_is_drawn_in_range_and_redrawn_at_each_reset():
     assert len(seen) > 1 and worker.episodes  # episodes ended and drew new stds
     fixed = RolloutWorker(ENV, seed=3, worker=0, n_envs=2, noise_std=0.3)
     assert (fixed.env_noise == 0.3).all()
+
+
+def _lag_one_correlation(noise_color: float) -> np.ndarray:
+    """Per action axis, the correlation of consecutive exploration actions within an episode, with an actor
+    that always outputs 0 (so the actions are the noise)."""
+    from safemanip.rl.networks import Actor, actor_arrays
+
+    worker = RolloutWorker(ENV, seed=3, worker=0, n_envs=1, noise_std=0.1, noise_color=noise_color)
+    worker.set_weights([0 * a for a in actor_arrays(Actor(observation_dim(2), 3, (16, 16)))])
+    chunk, episodes = worker.collect(300, random=False)
+    act = chunk["act"]
+    same_episode = np.array([np.array_equal(chunk["next_obs"][i], chunk["obs"][i + 1]) for i in range(len(act) - 1)])
+    assert episodes and same_episode.sum() > 200  # several episodes, most pairs within one
+    x, y = act[:-1][same_episode], act[1:][same_episode]
+    return np.array([np.corrcoef(x[:, d], y[:, d])[0, 1] for d in range(3)])
+
+
+def test_coloured_exploration_noise_is_correlated_within_an_episode_and_white_noise_is_not():
+    assert (np.abs(_lag_one_correlation(0.0)) < 0.2).all()  # white: independent every step
+    assert (_lag_one_correlation(1.0) > 0.5).all()  # pink
+    assert (_lag_one_correlation(2.0) > 0.9).all()  # red: a slow drift
+    from safemanip.rl.networks import Actor, actor_arrays
+
+    worker = RolloutWorker(ENV, seed=3, worker=0, n_envs=1, noise_std=0.1, noise_color=1.0)
+    worker.set_weights(actor_arrays(Actor(observation_dim(2), 3, (16, 16))))
+    for _ in range(200):  # each episode starts a sequence of its own
+        worker.step_all(random=False)
+        if worker.episodes:
+            assert worker.noise_seq[0] is None
+            worker.step_all(random=False)
+            assert worker.noise_t[0] == 1
+            break
+    else:
+        pytest.fail("no episode ended in 200 steps")
+    with pytest.raises(ConfigError, match="noise_color"):
+        TrainConfig(**{**CFG, "noise_color": 2.5})
 
 
 def test_local_process_pool_streams_the_same_transitions_as_the_worker_class():

@@ -32,6 +32,8 @@ FLAGS = {
     "--gamma-start": ("gamma_start", float_in(0, 1), "anneal gamma from this value over the first half of the budget"),
     "--learning-rate-final": ("learning_rate_final", float_in(0, 1, lo_open=True),
                               "let both learning rates fall on a cosine to this over the budget (default: constant)"),
+    "--noise-color": ("noise_color", float_in(0, 2), "exploration noise spectrum 1/f^beta: 0 white (default), "
+                                                     "1 pink, 2 red (correlated over an episode)"),
     "--env-steps-per-update": ("env_steps_per_update", float_in(0, 10_000, lo_open=True),
                                "environment steps collected per learner update"),
     "--eval-every-s": ("eval_every_s", float_in(0, 86_400, lo_open=True), "seconds between evaluations"),

@@ -26,6 +26,7 @@ import numpy as np
 from safemanip.rl.envs import EnvBuilder, env_builder
 
 CHUNK = 256  # transitions per message: large enough to amortise IPC, small enough to stay fresh
+NOISE_HORIZON = 300  # steps in one coloured-noise sequence: an episode's whole length at the default time limit
 TRANSITION_KEYS = ("obs", "act", "next_obs", "l", "g", "next_l", "next_g", "terminated")  # = buffer.FIELDS
 
 
@@ -39,13 +40,17 @@ class RolloutWorker:
     ``env``: the env's kwargs for the registry, or an ``EnvBuilder`` already resolved (what the pools send)."""
 
     def __init__(self, env: dict | EnvBuilder, seed: int, worker: int, n_envs: int, noise_std: float,
-                 noise_per_episode: bool = False):
+                 noise_per_episode: bool = False, noise_color: float = 0.0):
         self.rng = np.random.default_rng(seed + 7919 * worker)
         self.noise_std = noise_std
         self.noise_per_episode = noise_per_episode
+        self.noise_color = float(noise_color)
         self.env_noise = np.array([self._draw_noise() for _ in range(n_envs)])
         build = env if isinstance(env, EnvBuilder) else env_builder(env)
         self.envs = [build() for _ in range(n_envs)]
+        # coloured noise: one unit-variance sequence per env, (NOISE_HORIZON, act_dim), started afresh each episode
+        self.noise_seq: list[np.ndarray | None] = [None] * n_envs
+        self.noise_t = [0] * n_envs
         self.obs, self.infos = [], []
         for i, e in enumerate(self.envs):
             o, info = e.reset(seed=int(seed * 1000 + worker * 100 + i))
@@ -59,19 +64,37 @@ class RolloutWorker:
         """This episode's noise std: ``noise_std``, or with ``noise_per_episode`` uniform in [0, noise_std]."""
         return float(self.rng.uniform(0.0, self.noise_std)) if self.noise_per_episode else self.noise_std
 
+    def _unit_noise(self, shape: tuple[int, int]) -> np.ndarray:
+        """(n_envs, act_dim) standard-normal exploration noise: white (independent every step) or, with
+        ``noise_color`` beta > 0, the next step of each env's power-law (1/f^beta) sequence."""
+        if not self.noise_color:
+            return self.rng.normal(0.0, 1.0, size=shape)
+        from colorednoise import powerlaw_psd_gaussian  # numpy only; imported where it is used
+
+        out = np.empty(shape)
+        for i in range(shape[0]):
+            if self.noise_seq[i] is None or self.noise_t[i] >= NOISE_HORIZON:
+                self.noise_seq[i] = powerlaw_psd_gaussian(self.noise_color, (shape[1], NOISE_HORIZON),
+                                                          random_state=self.rng).T
+                self.noise_t[i] = 0
+            out[i] = self.noise_seq[i][self.noise_t[i]]
+            self.noise_t[i] += 1
+        return out
+
     def set_weights(self, arrays) -> None:
         from safemanip.rl.numpy_actor import make_numpy_actor
 
         self.actor = make_numpy_actor(arrays) if self.actor is None else (self.actor.set(arrays) or self.actor)
 
     def step_all(self, random: bool) -> int:
-        """One action in every env (uniform random, or the actor plus Gaussian noise); returns the steps taken."""
+        """One action in every env (uniform random, or the actor plus Gaussian noise, white or coloured); returns
+        the steps taken."""
         envs, buf = self.envs, self.buf
         if random or self.actor is None:
             actions = self.rng.uniform(-1, 1, size=(len(envs), *envs[0].action_space.shape))
         else:
             actions = self.actor(np.stack(self.obs))
-            noise = self.rng.normal(0.0, 1.0, size=actions.shape) * self.env_noise[:, None]
+            noise = self._unit_noise(actions.shape) * self.env_noise[:, None]
             actions = np.clip(actions + noise, -1, 1)
         for i, env in enumerate(envs):
             next_o, _, terminated, truncated, info = env.step(actions[i])
@@ -87,6 +110,7 @@ class RolloutWorker:
                 self.episodes.append((info["event"], info["t"]))
                 next_o, info = env.reset()
                 self.env_noise[i] = self._draw_noise()
+                self.noise_seq[i] = None  # a new episode starts a new coloured sequence
             self.obs[i], self.infos[i] = next_o, info
         return len(envs)
 
@@ -112,11 +136,11 @@ class RolloutWorker:
 # ------------------------------------------------------------------------------------------ local processes
 def run_collector(worker: int, env: EnvBuilder, seed: int, n_envs: int, data_q, weights_q, stop, counters,
                   random_steps: int, noise_std: float, learning_starts: int, steps_per_update: float,
-                  noise_per_episode: bool = False) -> None:
+                  noise_per_episode: bool = False, noise_color: float = 0.0) -> None:
     """Worker process main loop. ``counters[0]`` is the total env steps (all workers), ``counters[1]`` learner updates."""
     import multiprocessing as mp
 
-    rollout = RolloutWorker(env, seed, worker, n_envs, noise_std, noise_per_episode)
+    rollout = RolloutWorker(env, seed, worker, n_envs, noise_std, noise_per_episode, noise_color)
     parent = mp.parent_process()
     while not stop.is_set():
         if parent is not None and not parent.is_alive():  # the learner was killed: do not linger as an orphan
@@ -157,7 +181,7 @@ class LocalPool:
                                     args=(os.getpid(), run_collector, w, build, seed, cfg.envs_per_collector,
                                           self.data_q, self.weights_qs[w], self.stop, self.counters, cfg.random_steps,
                                           cfg.exploration_noise, cfg.learning_starts, cfg.env_steps_per_update,
-                                          cfg.noise_per_episode))
+                                          cfg.noise_per_episode, cfg.noise_color))
                         for w in range(cfg.n_collectors)]
         for q in self.weights_qs:  # never block this process's exit on a queue whose reader is gone
             q.cancel_join_thread()
@@ -215,7 +239,7 @@ class RayPool:
         self.cfg = cfg
         remote = ray.remote(num_cpus=1)(RolloutWorker)
         self.actors = [remote.remote(build, seed, w, cfg.envs_per_collector, cfg.exploration_noise,
-                                      cfg.noise_per_episode)
+                                      cfg.noise_per_episode, cfg.noise_color)
                        for w in range(cfg.n_collectors)]
         self.env_steps, self.updates = int(env_steps), int(updates)
         self.in_flight: dict = {}  # ObjectRef -> actor index

@@ -83,6 +83,11 @@ class TrainConfig:
     """Each episode draws its noise std uniformly from [0, exploration_noise]: some episodes act almost as the
     actor would, so the replay holds placements (a box at rest needs |a| < 0.03, which full noise all but
     rules out) as well as wide exploration."""
+    noise_color: float = 0.0
+    """Spectrum of the exploration noise, as the exponent beta of its power law 1/f^beta (Eberhard et al.,
+    "Pink Noise Is All You Need", ICLR 2023): 0 white (independent every step, TD3's usual), 1 pink, 2 red.
+    Correlated noise keeps a deviation for many steps -- a detour round the clutter -- where white noise at
+    20 Hz averages out within a few steps. Each episode starts a fresh sequence (``colorednoise``)."""
     random_steps: int = 10_000
     """Environment steps taken with uniformly random actions before the actor is used."""
     learning_starts: int = 5_000
@@ -189,6 +194,8 @@ class TrainConfig:
             problems.append("policy_delay and torch_threads must be >= 1")
         if self.exploration_noise < 0 or self.target_noise < 0 or self.target_noise_clip < 0:
             problems.append("exploration_noise, target_noise and target_noise_clip must be >= 0")
+        if not 0 <= self.noise_color <= 2:
+            problems.append(f"noise_color must be from 0 (white) to 2 (red), got {self.noise_color}")
         for name in ("eval_every_s", "checkpoint_every_s", "log_every_s"):
             if not 0 < getattr(self, name) <= 86_400:
                 problems.append(f"{name} must be in (0, 86400] seconds, got {getattr(self, name)}")
