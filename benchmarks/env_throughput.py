@@ -9,7 +9,9 @@ per-substep judge sensors and contact gap, so its difference to "raw" is what ju
 MuJoCo. The controller (the Panda's differential IK, the hand's set-point write) and the judge's Python
 side (one history gather and the substep margins) are timed separately, in microseconds per env step.
 Actions: the scripted controller plus noise, so episodes look like a rollout's. Resets are inside the env
-rate (a rollout pays them too) and also shown alone ("reset ms", per reset). One process, one thread;
+rate (a rollout pays them too) and also shown alone ("reset ms", per reset); these use one fixed object
+set, so a reset never compiles. A second table prices what training and evaluation pay: a reset that
+draws a new object set compiles its model. One process, one thread;
 medians over interleaved repeats.
 """
 
@@ -110,6 +112,25 @@ def component_costs(env: SlideOutEnv, repeats: int = 2000) -> tuple[float, float
     return controller, (with_substeps - end_only) * 1e6
 
 
+def reset_costs(n: int, embodiment: str, resets: int = 40) -> tuple[float, float]:
+    """(median ms of a reset whose object set was seen before, median ms of one that draws a new set).
+
+    The throughput rows above use one fixed object set, so their resets always find the compiled scene in
+    the env's cache. Training and evaluation draw the objects' names per episode, and most draws are new
+    (N = 4 fragile: 330 sets, N = 6 from the whole catalog: 1.6 million), so their resets compile a model."""
+    env = SlideOutEnv(n_objects=n, embodiment=embodiment)
+    cached, fresh = [], []
+    for i in range(resets):
+        t0 = time.perf_counter()
+        env.reset(seed=10_000 + i)  # a new draw of names (a repeat of an earlier set is possible but rare)
+        fresh.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        env.reset(seed=10_000 + i)  # the same scene again: the compiled model is cached
+        cached.append(time.perf_counter() - t0)
+    env.close()
+    return 1e3 * statistics.median(cached), 1e3 * statistics.median(fresh)
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--steps", type=int, default=2000)
@@ -154,6 +175,12 @@ def main() -> None:
     for robot, n, s, e, r, ratio, b, c, j, length, reset in rows:
         print(f"{robot:>6} {n:>2} {s:>5} {e:>11.0f} {r:>11.0f} {ratio:>5.2f} {b:>13.0f} {c:>13.1f} {j:>8.1f} "
               f"{length:>7.1f} {reset:>8.2f}")
+    print(f"\n{'robot':>6} {'N':>2} {'reset ms, cached scene':>22} {'reset ms, new object set':>24}")
+    for embodiment in args.embodiments:
+        for n in args.objects:
+            if n:
+                cached, fresh = reset_costs(n, embodiment)
+                print(f"{embodiment:>6} {n:>2} {cached:>22.2f} {fresh:>24.2f}")
 
 
 if __name__ == "__main__":
