@@ -14,7 +14,8 @@ over the repeats, each measurement a fixed wall-clock slice after a warm-up:
                  losses and targets). Only fast where bf16 is native (AVX512-BF16 / AMX / CUDA); the
                  start-up check in ``rl/precision.py`` says which this machine is.
   ours fp32, set network   (``--with-set``) the object-set actor/critic on the same observations
-                 (random one-hots, so some slots count as absent: a cost figure, not a learning one).
+                 (random one-hots, so some slots count as absent: a cost figure, not a learning one);
+                 with bf16 also a bf16 row of it.
   SB3 TD3        ``stable_baselines3.TD3.train()`` on identical networks (net_arch 3 x 256, AdamW,
                  twin critics, policy delay 2, batch as given) with its replay buffer pre-filled;
                  skipped with a note when stable-baselines3 is not installed (``pip install -e .[bench]``).
@@ -147,7 +148,7 @@ def main() -> None:
     p.add_argument("--batches", type=int, nargs="+", default=[200, 1024])
     p.add_argument("--obs-dim", type=int, default=36, help="36 = the k=2 slide-out observation")
     p.add_argument("--no-bf16", action="store_true", help="skip the bf16 row (slow where bf16 is emulated)")
-    p.add_argument("--with-set", action="store_true", help="add a row for the object-set network (fp32)")
+    p.add_argument("--with-set", action="store_true", help="add rows for the object-set network (fp32, bf16)")
     args = p.parse_args()
     torch.set_num_threads(1)
     flags = cpu_bf16_flags()
@@ -160,6 +161,8 @@ def main() -> None:
             rows["ours bf16 (Learner.update)"], prec = ours(args.obs_dim, batch, "bf16", buf)
         if args.with_set:
             rows["ours fp32, set network"], _ = ours(args.obs_dim, batch, "fp32", buf, "set")
+            if not args.no_bf16:
+                rows["ours bf16, set network"], _ = ours(args.obs_dim, batch, "bf16", buf, "set")
         step = sb3(args.obs_dim, batch)
         if step is not None:
             rows["SB3 TD3 train()"] = step
@@ -176,7 +179,10 @@ def main() -> None:
             print(f"{name:<28} {med:>10.1f} {1000 / med:>10.2f} {med * batch:>10.0f} {med / ref:>7.2f}x  "
                   f"{min(values):.1f}-{max(values):.1f}")
         if "SB3 TD3 train()" in rates:
-            print(f"ours fp32 / SB3 TD3: {statistics.median(rates['ours fp32 (Learner.update)']) / statistics.median(rates['SB3 TD3 train()']):.2f}x")
+            theirs = statistics.median(rates["SB3 TD3 train()"])
+            for ours_row in ("ours fp32 (Learner.update)", "ours bf16 (Learner.update)"):
+                if ours_row in rates:
+                    print(f"{ours_row.split(' (')[0]} / SB3 TD3: {statistics.median(rates[ours_row]) / theirs:.2f}x")
         else:
             print("SB3 TD3: skipped (stable-baselines3 not installed; pip install -e .[bench])")
     if not args.no_bf16:
