@@ -1,6 +1,6 @@
 """Wall-clock and env steps until the evaluation success rate first reaches a threshold.
 
-    python benchmarks/time_to_success.py RUN_DIR [RUN_DIR ...] [--threshold 0.8]
+    python benchmarks/time_to_success.py RUN_DIR [RUN_DIR ...] [--threshold 0.6 0.7 0.8]
     python benchmarks/time_to_success.py --train --minutes 35 [--algorithm rarl] [--seed 0] [--out runs/tts]
 
 Reads each run's ``evals.jsonl`` (one line per periodic evaluation on held-out seeds, written by
@@ -26,7 +26,8 @@ def first_reaching(run: Path, threshold: float) -> dict:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("runs", nargs="*", type=Path)
-    p.add_argument("--threshold", type=float, default=0.8)
+    p.add_argument("--threshold", type=float, nargs="+", default=[0.8],
+                   help="one row per run and threshold (fractions, e.g. 0.6 0.7 0.8)")
     p.add_argument("--train", action="store_true", help="train a fresh run first")
     p.add_argument("--minutes", type=float, default=35.0)
     p.add_argument("--algorithm", default="rarl")
@@ -43,18 +44,19 @@ def main() -> None:
         runs.append(train(cfg, progress=True))
     if not runs:
         p.error("give run folders or --train")
-    print(f"{'run':<44} {'evals':>5} {'first >= %d%%' % (100 * args.threshold):>14} {'wall min':>8} "
+    print(f"{'run':<44} {'evals':>5} {'threshold':>9} {'first eval >=':>13} {'wall min':>8} "
           f"{'env steps':>10} {'updates':>8} {'best':>6}")
     for run in runs:
-        r = first_reaching(run, args.threshold)
-        best = f"{100 * r['best']['success']:.0f}%" if r["best"] else "-"
-        if r["hit"]:
-            h = r["hit"]
-            print(f"{r['run']:<44} {r['evals']:>5} {100 * h['success']:>13.0f}% {h['wall_s'] / 60:>8.1f} "
-                  f"{h['env_steps']:>10} {h['updates']:>8} {best:>6}")
-        else:
-            print(f"{r['run']:<44} {r['evals']:>5} {'not reached':>14} {'-':>8} {'-':>10} {'-':>8} {best:>6}")
-
+        for threshold in args.threshold:
+            r = first_reaching(run, threshold)
+            best = f"{100 * r['best']['success']:.0f}%" if r["best"] else "-"
+            if r["hit"]:
+                h = r["hit"]
+                print(f"{r['run']:<44} {r['evals']:>5} {100 * threshold:>8.0f}% {100 * h['success']:>12.0f}% "
+                      f"{h['wall_s'] / 60:>8.1f} {h['env_steps']:>10} {h['updates']:>8} {best:>6}")
+            else:
+                print(f"{r['run']:<44} {r['evals']:>5} {100 * threshold:>8.0f}% {'not reached':>13} {'-':>8} "
+                      f"{'-':>10} {'-':>8} {best:>6}")
 
 if __name__ == "__main__":
     main()
