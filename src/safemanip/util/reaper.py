@@ -10,7 +10,8 @@ which, while PID lives, notes PID's descendants (pid and start time) every ``POL
 gone sends SIGKILL to every one of them still running under the same start time (so a reused pid is never hit).
 A last sweep when PID is gone adds what the noted processes started since the last poll (a Ray worker spawned
 in the last quarter second before a kill would otherwise escape: the likely cause of a rare CI failure in which
-two Ray processes outlived a kill -9 of an eval; not proven, since it did not recur in eight local runs).
+two Ray processes outlived a kill -9 of an eval. Not proven: that test failed once in CI and once here, then
+passed the seven runs here since this sweep went in).
 """
 
 from __future__ import annotations
