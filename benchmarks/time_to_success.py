@@ -16,11 +16,13 @@ import json
 from pathlib import Path
 
 
-def first_reaching(run: Path, threshold: float) -> dict:
-    evals = [json.loads(line) for line in (run / "evals.jsonl").read_text().splitlines() if line.strip()]
-    best = max(evals, key=lambda e: e["success"]) if evals else None
-    hit = next((e for e in evals if e["success"] >= threshold), None)
-    return {"run": str(run), "evals": len(evals), "hit": hit, "best": best}
+def read_evals(run: Path) -> list[dict]:
+    return [json.loads(line) for line in (run / "evals.jsonl").read_text().splitlines() if line.strip()]
+
+
+def first_reaching(evals: list[dict], threshold: float) -> dict | None:
+    """The first periodic evaluation at or above ``threshold``, or None."""
+    return next((e for e in evals if e["success"] >= threshold), None)
 
 
 def main() -> None:
@@ -47,16 +49,17 @@ def main() -> None:
     print(f"{'run':<44} {'evals':>5} {'threshold':>9} {'first eval >=':>13} {'wall min':>8} "
           f"{'env steps':>10} {'updates':>8} {'best':>6}")
     for run in runs:
+        evals = read_evals(run)
+        best = f"{100 * max(e['success'] for e in evals):.0f}%" if evals else "-"
         for threshold in args.threshold:
-            r = first_reaching(run, threshold)
-            best = f"{100 * r['best']['success']:.0f}%" if r["best"] else "-"
-            if r["hit"]:
-                h = r["hit"]
-                print(f"{r['run']:<44} {r['evals']:>5} {100 * threshold:>8.0f}% {100 * h['success']:>12.0f}% "
+            h = first_reaching(evals, threshold)
+            if h:
+                print(f"{str(run):<44} {len(evals):>5} {100 * threshold:>8.0f}% {100 * h['success']:>12.0f}% "
                       f"{h['wall_s'] / 60:>8.1f} {h['env_steps']:>10} {h['updates']:>8} {best:>6}")
             else:
-                print(f"{r['run']:<44} {r['evals']:>5} {100 * threshold:>8.0f}% {'not reached':>13} {'-':>8} "
+                print(f"{str(run):<44} {len(evals):>5} {100 * threshold:>8.0f}% {'not reached':>13} {'-':>8} "
                       f"{'-':>10} {'-':>8} {best:>6}")
+
 
 if __name__ == "__main__":
     main()

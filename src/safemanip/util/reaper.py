@@ -37,8 +37,8 @@ def _stat(pid: int) -> tuple[int, int] | None:
     return int(fields[1]), int(fields[19])
 
 
-def descendants(root: int) -> dict[int, int]:
-    """pid -> start time of every live descendant of ``root``."""
+def descendants(*roots: int) -> dict[int, int]:
+    """pid -> start time of every live descendant of any of ``roots`` (one pass over /proc)."""
     children: dict[int, list[int]] = {}
     started: dict[int, int] = {}
     for entry in os.listdir("/proc"):
@@ -47,7 +47,7 @@ def descendants(root: int) -> dict[int, int]:
             if info is not None:
                 children.setdefault(info[0], []).append(int(entry))
                 started[int(entry)] = info[1]
-    out, todo = {}, [root]
+    out, todo = {}, list(roots)
     while todo:
         for child in children.get(todo.pop(), []):
             if child not in out:
@@ -65,8 +65,7 @@ def watch(root: int) -> None:
         seen = {p: t for p, t in seen.items() if p != me and (_stat(p) or (0, -1))[1] == t}
         time.sleep(POLL_S)
     # a last sweep: what the noted processes (still running) started since the last poll
-    for pid in list(seen):
-        seen.update(descendants(pid))
+    seen.update(descendants(*seen))
     seen.pop(me, None)
     for pid, started in seen.items():
         info = _stat(pid)
