@@ -10,8 +10,9 @@ MuJoCo. The controller (the Panda's differential IK, the hand's set-point write)
 side (one history gather and the substep margins) are timed separately, in microseconds per env step.
 Actions: the scripted controller plus noise, so episodes look like a rollout's. Resets are inside the env
 rate (a rollout pays them too) and also shown alone ("reset ms", per reset); these use one fixed object
-set, so a reset never compiles. A second table prices what training and evaluation pay: a reset that
-draws a new object set compiles its model. One process, one thread;
+set, so a reset never compiles. A second table prices what training and evaluation pay: a reset into an
+object set that another env of the process compiled (a fresh MjData only), and one into a set new to the
+process (it compiles a model). One process, one thread;
 medians over interleaved repeats.
 """
 
@@ -26,7 +27,7 @@ import numpy as np
 
 from safemanip.control.scripted import ScriptedController
 from safemanip.env.slide_out import SlideOutEnv
-from safemanip.scene.builder import build_spec
+from safemanip.scene.builder import build_model, build_spec, scene_index
 from safemanip.scene.embodiment import make_embodiment
 
 STATE = mujoco.mjtState.mjSTATE_INTEGRATION
@@ -112,23 +113,32 @@ def component_costs(env: SlideOutEnv, repeats: int = 2000) -> tuple[float, float
     return controller, (with_substeps - end_only) * 1e6
 
 
-def reset_costs(n: int, embodiment: str, resets: int = 40) -> tuple[float, float]:
-    """(median ms of a reset whose object set was seen before, median ms of one that draws a new set).
+def reset_costs(n: int, embodiment: str, resets: int = 40) -> tuple[float, float, float]:
+    """(median ms of a reset whose object set this env saw before, of one whose set another env in the process
+    compiled, of one that draws a set new to the process).
 
     The throughput rows above use one fixed object set, so their resets always find the compiled scene in
     the env's cache. Training and evaluation draw the objects' names per episode, and most draws are new
-    (N = 4 fragile: 330 sets, N = 6 from the whole catalog: 1.6 million), so their resets compile a model."""
-    env = SlideOutEnv(n_objects=n, embodiment=embodiment)
-    cached, fresh = [], []
+    to an env (N = 4 fragile: 330 sets, N = 6 from the whole catalog: 1.6 million). Compiled models are
+    shared by the envs of a process (``MODEL_CACHE_SIZE`` of them), so a set met before anywhere in the
+    process costs only a fresh MjData; a set new to the process compiles a model."""
+    build_model.cache_clear()
+    scene_index.cache_clear()
+    first, second = SlideOutEnv(n_objects=n, embodiment=embodiment), SlideOutEnv(n_objects=n, embodiment=embodiment)
+    cached, shared, fresh = [], [], []
     for i in range(resets):
         t0 = time.perf_counter()
-        env.reset(seed=10_000 + i)  # a new draw of names (a repeat of an earlier set is possible but rare)
+        first.reset(seed=10_000 + i)  # a new draw of names (a repeat of an earlier set is possible but rare)
         fresh.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
-        env.reset(seed=10_000 + i)  # the same scene again: the compiled model is cached
+        first.reset(seed=10_000 + i)  # the same scene again: this env's own cache
         cached.append(time.perf_counter() - t0)
-    env.close()
-    return 1e3 * statistics.median(cached), 1e3 * statistics.median(fresh)
+        t0 = time.perf_counter()
+        second.reset(seed=10_000 + i)  # new to this env, compiled by the other
+        shared.append(time.perf_counter() - t0)
+    first.close()
+    second.close()
+    return tuple(1e3 * statistics.median(x) for x in (cached, shared, fresh))
 
 
 def main() -> None:
@@ -175,12 +185,12 @@ def main() -> None:
     for robot, n, s, e, r, ratio, b, c, j, length, reset in rows:
         print(f"{robot:>6} {n:>2} {s:>5} {e:>11.0f} {r:>11.0f} {ratio:>5.2f} {b:>13.0f} {c:>13.1f} {j:>8.1f} "
               f"{length:>7.1f} {reset:>8.2f}")
-    print(f"\n{'robot':>6} {'N':>2} {'reset ms, cached scene':>22} {'reset ms, new object set':>24}")
+    print(f"\n{'robot':>6} {'N':>2} {'reset ms: same env':>18} {'model from the process':>22} {'new object set':>14}")
     for embodiment in args.embodiments:
         for n in args.objects:
             if n:
-                cached, fresh = reset_costs(n, embodiment)
-                print(f"{embodiment:>6} {n:>2} {cached:>22.2f} {fresh:>24.2f}")
+                cached, shared, fresh = reset_costs(n, embodiment)
+                print(f"{embodiment:>6} {n:>2} {cached:>18.2f} {shared:>22.2f} {fresh:>14.2f}")
 
 
 if __name__ == "__main__":

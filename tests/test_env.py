@@ -179,6 +179,18 @@ def test_scene_caches_stay_bounded_under_random_object_draws():
     env.step(np.zeros(3))  # the scene in use survived the evictions
 
 
+def test_envs_in_one_process_share_compiled_scenes_but_not_their_state():
+    from safemanip.scene.builder import MODEL_CACHE_SIZE, build_model
+    a, b = SlideOutEnv(n_objects=3), SlideOutEnv(n_objects=3)
+    a.reset(seed=3)
+    b.reset(seed=3)  # the same draw of names: the compiled model is reused, not rebuilt
+    assert a.model is b.model and a.index is b.index
+    assert a.data is not b.data and a.binding is not b.binding
+    a.step(np.array([0.0, 1.0, 0.0]))
+    assert not np.array_equal(a.data.qpos, b.data.qpos)  # stepping one leaves the other where it was
+    assert build_model.cache_info().maxsize == MODEL_CACHE_SIZE >= 330  # every 4-of-11 fragile draw fits
+
+
 def test_initial_states_are_safe_and_not_done():
     env = SlideOutEnv(n_objects=8)
     for seed in range(10):

@@ -25,7 +25,7 @@ import numpy as np
 from safemanip.control.diff_ik import MAX_EE_ACCEL, MAX_EE_SPEED, limit_ee_velocity, shape_action
 from safemanip.env import margins as M
 from safemanip.env.observation import SceneState, encode_constraints, observation_space, slot_dim
-from safemanip.scene.builder import CONTROL_DT, SUBSTEPS, SceneIndex, build_model
+from safemanip.scene.builder import CONTROL_DT, SUBSTEPS, SceneIndex, build_model, scene_index
 from safemanip.scene.catalog import CONSTRAINT_TYPES, load_catalog, names_of_class
 from safemanip.scene.config import GEOMETRY, SceneConfig
 from safemanip.scene.embodiment import EMBODIMENTS, make_embodiment
@@ -106,9 +106,12 @@ class SlideOutEnv(gym.Env):
     # ------------------------------------------------------------------ set-up
     def _sim(self, names: tuple[str, ...]):
         if names not in self._sims:
-            model = build_model(names, self.sleep, self.embodiment_name, self.visual, self.thresholds.collision)
+            key = (names, self.sleep, self.embodiment_name, self.visual, self.thresholds.collision)
+            # model and index are shared by every env in the process (``MODEL_CACHE_SIZE``); the data, the
+            # robot's binding (its scratch arrays) and the views into the data are this env's own
+            model, index = build_model(*key), scene_index(*key)
             data = mujoco.MjData(model)
-            index, binding = SceneIndex.from_model(model, len(names), self.robot), self.robot.bind(model)
+            binding = self.robot.bind(model)
             _evict_oldest(self._sims)
             self._sims[names] = (model, data, index, binding, _StateGather.build(model, index, binding, data,
                                                                                    self.object_size))
