@@ -744,3 +744,16 @@ def test_every_catalog_object_stays_put_on_the_table_when_nothing_touches_it():
         if drift > 0.002:
             moved[name] = round(drift, 4)
     assert not moved, f"objects that moved on their own [m]: {moved}"
+
+
+def test_the_episode_layout_is_kept_with_the_objects_where_it_put_them():
+    env = SlideOutEnv(n_objects=4, classes="4 fragile", constraints="conservative")
+    assert env.placement is None
+    env.reset(seed=7)
+    layout = env.placement
+    assert layout.near_path.sum() == 2  # round(0.5 * 4) stand in the corridor to the goal
+    for i in range(4):
+        adr = env.index.object_qpos[i]
+        np.testing.assert_allclose(env.data.qpos[adr:adr + 2], layout.xy[i])
+    env.reset(seed=8)
+    assert env.placement is not layout

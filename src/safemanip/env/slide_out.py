@@ -102,6 +102,7 @@ class SlideOutEnv(gym.Env):
         self.model = self.data = None
         self.names: tuple[str, ...] = ()
         self.constraints: tuple[str, ...] = ()
+        self.placement = None
 
     # ------------------------------------------------------------------ set-up
     def _sim(self, names: tuple[str, ...]):
@@ -177,6 +178,7 @@ class SlideOutEnv(gym.Env):
         self.model, self.data, self.index, self.binding, self.gather = self._sim(names)
         self.constraints = self._choose_constraints(options.get("constraints", self.constraint_mode), rng)
         placement = sample_placement(self._footprint_radii(names), rng, self.config.near_path_fraction, self.geometry)
+        self.placement = placement  # this episode's initial layout (``near_path``: which objects stand in the corridor)
         m, d, idx = self.model, self.data, self.index
         mujoco.mj_resetData(m, d)
         self.robot.reset(m, d, self.binding)
