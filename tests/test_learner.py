@@ -103,6 +103,16 @@ def test_actor_and_targets_move_only_every_policy_delay_updates():
     assert not same(params(learner.actor), actor0) and not same(params(learner.critic_targ), targ0)
 
 
+def test_a_saturated_actor_is_reported():
+    torch.manual_seed(3)
+    learner = Learner(OBS, ACT, TrainConfig(**SMALL, policy_delay=1))
+    healthy = learner.update(batch(), 0.99)["actor/saturated"]
+    assert 0.0 <= healthy < 0.5  # a fresh actor's outputs sit well inside (-1, 1)
+    with torch.no_grad():
+        learner.actor.net[-1].bias.fill_(50.0)  # every pre-activation far past tanh's knee
+    assert learner.update(batch(), 0.99)["actor/saturated"] == 1.0
+
+
 def test_learning_rate_schedule_is_a_cosine_from_the_rate_to_the_final_one_and_reaches_the_optimisers():
     constant = TrainConfig(**SMALL)
     assert constant.learning_rate_at(0.0) == constant.learning_rate_at(0.7) == constant.learning_rate

@@ -107,7 +107,8 @@ class Learner:
         if self.updates % cfg.policy_delay == 0:
             self.critic.requires_grad_(False)  # the actor loss needs no critic weight gradients
             with self.autocast():
-                q1 = self.critic(batch.obs, self.actor(batch.obs), head=0)
+                actions = self.actor(batch.obs)
+                q1 = self.critic(batch.obs, actions, head=0)
             actor_loss = -q1.float().mean()
             self.critic.requires_grad_(True)
             self.actor_opt.zero_grad(set_to_none=True)
@@ -115,6 +116,9 @@ class Learner:
             self.actor_opt.step()
             polyak_update(self._online, self._target, cfg.polyak)
             metrics["loss/actor"] = actor_loss.detach()
+            # share of action components pinned at the tanh bounds: near 1, the actor's gradient has vanished
+            # and it emits one constant action (a DDPG failure that looks like a flat learning curve)
+            metrics["actor/saturated"] = (actions.detach().float().abs() > 0.99).float().mean()
         return {k: v.item() for k, v in metrics.items()}
 
     # ---------------------------------------------------------------- state for checkpoints
