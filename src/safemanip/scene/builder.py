@@ -165,10 +165,11 @@ def build_spec(names: tuple[str, ...], embodiment: Embodiment | None = None, geo
 
 MODEL_CACHE_SIZE = 384
 """Compiled scenes kept per process, shared by its envs. Building and compiling one is most of a reset that
-draws a new object set (about 3 of 5.6 ms at N = 6 on the Panda). A Panda scene takes about 0.7 MB (about 0.3 MB
-of it resident: a full cache adds ~100 MB to a process). It holds every four-object draw of the 11 fragile objects (330), the scenes of the
-Fig. 5 cells, so evaluation there compiles each set once per process. Training draws its objects from the
-whole catalog (52,360 four-object sets) and seldom meets a set twice: there it saves little."""
+draws a new object set (about 3 of 5.6 ms at N = 6 on the Panda). A Panda scene takes about 0.7 MB, about
+0.3 MB of it resident: a full cache adds ~100 MB to a process. It holds every four-object draw of the 11
+fragile objects (330), the scenes of the Fig. 5 cells, so evaluation there compiles each set once per
+process. Training draws its objects from the whole catalog (52,360 four-object sets) and seldom meets a set
+twice: there it saves little."""
 
 
 @lru_cache(maxsize=MODEL_CACHE_SIZE)
