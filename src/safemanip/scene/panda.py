@@ -281,6 +281,56 @@ def _as_slice(ids: np.ndarray):
     return ids
 
 
+class _BareArm:
+    """The Panda alone at its base, for inverse kinematics of the hand pointing down (no scene, no box)."""
+
+    # hand pointing down, fingers closing along world y (the hand is then thin along x, towards the top box)
+    HAND_DOWN = np.array([[-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]])
+
+    def __init__(self):
+        spec = load_panda_spec(visual=False)
+        base = mujoco.MjSpec()
+        frame = base.worldbody.add_frame(pos=[BASE_XY[0], BASE_XY[1], BASE_Z],
+                                         quat=[math.sqrt(0.5), 0, 0, math.sqrt(0.5)])
+        frame.attach_body(spec.body("panda0_link0"), "panda/", "")
+        self.model = model = base.compile()
+        self.data = mujoco.MjData(model)
+        self.site = model.site("panda/end_effector").id
+        joints = [model.joint(f"panda/{j}") for j in JOINTS]
+        self.qadr = np.array([j.qposadr[0] for j in joints])
+        self.dadr = np.array([j.dofadr[0] for j in joints])
+        self.jacp, self.jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+
+    def solve(self, target_pos: np.ndarray, start: np.ndarray, posture: np.ndarray, iterations: int = 1000,
+              tolerance: float = 1e-6) -> tuple[np.ndarray, float, float]:
+        """DLS IK from ``start`` for the site at ``target_pos`` with the hand down, every joint kept LIMIT_MARGIN
+        inside Franka's ranges and pulled gently towards ``posture``. Returns the angles and the position [m]
+        and orientation [rad] residuals."""
+        model, data, site = self.model, self.data, self.site
+        lo, hi = FRANKA_JOINT_RANGES[:, 0] + LIMIT_MARGIN, FRANKA_JOINT_RANGES[:, 1] - LIMIT_MARGIN
+        data.qpos[self.qadr] = start
+        for _ in range(iterations):
+            mujoco.mj_kinematics(model, data)
+            mujoco.mj_comPos(model, data)
+            err = np.concatenate((target_pos - data.site_xpos[site],
+                                  orientation_error(data.site_xmat[site].reshape(3, 3), self.HAND_DOWN)))
+            if np.linalg.norm(err) < tolerance:
+                break
+            mujoco.mj_jacSite(model, data, self.jacp, self.jacr, site)
+            jac = np.vstack((self.jacp[:, self.dadr], self.jacr[:, self.dadr]))
+            step = dls_joint_velocity(jac, err, 0.01, 0.02 * (posture - data.qpos[self.qadr]))
+            data.qpos[self.qadr] = np.clip(data.qpos[self.qadr] + 0.5 * step, lo, hi)
+        return data.qpos[self.qadr].copy(), float(np.linalg.norm(err[:3])), float(np.linalg.norm(err[3:]))
+
+
+def _facing(target_xy) -> np.ndarray:
+    """The ready posture turned to face ``target_xy`` from the base, the hand's yaw kept."""
+    q = READY_POSTURE.copy()
+    q[0] = math.atan2(-(target_xy[0] - BASE_XY[0]), target_xy[1] - BASE_XY[1])
+    q[6] -= q[0]
+    return q
+
+
 @lru_cache(maxsize=4)
 def home_configuration(geo: TaskGeometry) -> tuple[np.ndarray, dict]:
     """Joint angles that put the closed fingertips on the box lip with the hand pointing down.
@@ -288,42 +338,62 @@ def home_configuration(geo: TaskGeometry) -> tuple[np.ndarray, dict]:
     Solved once by DLS IK on the bare arm from the ready posture; returns the angles and the world poses
     of the ``end_effector`` site and of link 7 in that configuration.
     """
-    spec = load_panda_spec(visual=False)
-    base = mujoco.MjSpec()
-    frame = base.worldbody.add_frame(pos=[BASE_XY[0], BASE_XY[1], BASE_Z], quat=[math.sqrt(0.5), 0, 0, math.sqrt(0.5)])
-    frame.attach_body(spec.body("panda0_link0"), "panda/", "")
-    model = base.compile()
-    data = mujoco.MjData(model)
-    hz = geo.box_half_extents[2]
+    arm = _BareArm()
     gx, gy = geo.grasp_xy
-    target_pos = np.array([gx, gy, 2 * hz + FINGERTIP_BELOW_SITE])
-    # hand pointing down, fingers closing along world y (the hand is then thin along x, towards the top box)
-    target_rot = np.array([[-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]])
-    site = model.site("panda/end_effector").id
-    joints = [model.joint(f"panda/{j}") for j in JOINTS]
-    qadr = np.array([j.qposadr[0] for j in joints])
-    dadr = np.array([j.dofadr[0] for j in joints])
-    start = READY_POSTURE.copy()
-    start[0] = math.atan2(-(target_pos[0] - BASE_XY[0]), target_pos[1] - BASE_XY[1])  # face the grasp
-    start[6] -= start[0]  # and keep the hand's yaw
-    data.qpos[qadr] = start
-    jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
-    lo, hi = FRANKA_JOINT_RANGES[:, 0] + LIMIT_MARGIN, FRANKA_JOINT_RANGES[:, 1] - LIMIT_MARGIN
-    for _ in range(1000):
-        mujoco.mj_kinematics(model, data)
-        mujoco.mj_comPos(model, data)
-        err = np.concatenate((target_pos - data.site_xpos[site],
-                              orientation_error(data.site_xmat[site].reshape(3, 3), target_rot)))
-        if np.linalg.norm(err) < 1e-6:
-            break
-        mujoco.mj_jacSite(model, data, jacp, jacr, site)
-        jac = np.vstack((jacp[:, dadr], jacr[:, dadr]))
-        step = dls_joint_velocity(jac, err, 0.01, 0.02 * (start - data.qpos[qadr]))
-        data.qpos[qadr] = np.clip(data.qpos[qadr] + 0.5 * step, lo, hi)
-    if np.linalg.norm(err) > 1e-4:
-        raise RuntimeError(f"no home configuration reaches the box grasp (residual {np.linalg.norm(err):.2e} m): "
+    start = _facing((gx, gy))
+    q, position_error, rotation_error = arm.solve(np.array([gx, gy, 2 * geo.box_half_extents[2] + FINGERTIP_BELOW_SITE]),
+                                                  start, start)
+    residual = math.hypot(position_error, rotation_error)
+    if residual > 1e-4:
+        raise RuntimeError(f"no home configuration reaches the box grasp (residual {residual:.2e} m): "
                            "the task geometry is out of the Panda's reach")
+    model, data, site = arm.model, arm.data, arm.site
     link7 = model.body("panda/panda0_link7").id
     poses = {"site": (data.site_xpos[site].copy(), data.site_xmat[site].reshape(3, 3).copy()),
              "link7": (data.xpos[link7].copy(), data.xmat[link7].reshape(3, 3).copy())}
-    return data.qpos[qadr].copy(), poses
+    return q, poses
+
+
+REACH_GRID = 0.02
+"""Spacing [m] of the map of where the Panda can hold the box (``holding_reach``)."""
+REACH_TOLERANCE = (0.01, 0.1)
+"""Position [m] and hand-orientation [rad] residuals within which a box centre counts as held: half a
+grid cell, and a tilt the orientation hold recovers from (a policy was seen to carry the box ~1 cm past
+the exact-pose boundary near the base)."""
+
+
+@lru_cache(maxsize=4)
+def holding_reach(geo: TaskGeometry) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where on the table the Panda can hold the box: (xs, ys, mask) on a ``REACH_GRID`` grid of box centres.
+
+    A cell is within reach if DLS IK, every joint at least ``LIMIT_MARGIN`` inside its range, puts the
+    fingertips on the box lip there with the hand pointing down, within ``REACH_TOLERANCE`` (the
+    controller, too, lets the hand tilt a little where a joint limit blocks the way). Solved once per
+    process by continuation: along each column of the grid from the lane's row outwards, each cell
+    starting from its neighbour's solution, up to the first cell out of reach (so the map holds the
+    cells the box can be carried to from the lane). It ignores the links' clearance from the table and
+    the clutter; the env judges those.
+    """
+    arm = _BareArm()
+    tx, ty = geo.table_half_extents
+    lip = geo.grasp_xy[0] - geo.bottom_xy[0], geo.grasp_xy[1] - geo.bottom_xy[1]  # fingertips from the box centre
+    z = 2 * geo.box_half_extents[2] + FINGERTIP_BELOW_SITE
+    xs = np.arange(-tx, tx + 1e-9, REACH_GRID)
+    ys = np.arange(-ty, ty + 1e-9, REACH_GRID)
+    mask = np.zeros((len(xs), len(ys)), dtype=bool)
+    home, _ = home_configuration(geo)
+    lane = int(np.argmin(np.abs(ys - geo.bottom_xy[1])))
+    for i, x in enumerate(xs):
+        for rows in (range(lane, len(ys)), range(lane - 1, -1, -1)):
+            q = None
+            for j in rows:
+                target = (x + lip[0], ys[j] + lip[1])
+                for start in ([_facing(target)] if q is None else [q, _facing(target)]):
+                    solution, position_error, rotation_error = arm.solve(np.array([*target, z]), start, home,
+                                                                         iterations=400, tolerance=1e-4)
+                    if position_error < REACH_TOLERANCE[0] and rotation_error < REACH_TOLERANCE[1]:
+                        mask[i, j], q = True, solution
+                        break
+                if not mask[i, j]:
+                    break
+    return xs, ys, mask
