@@ -1,4 +1,4 @@
-"""The main job: `safemanip demo` runs the shipped policy (and the scripted baseline) end to end."""
+"""The main job: `safemanip demo` runs the shipped policy (and the scripted baseline and the planner) end to end."""
 
 import json
 
@@ -33,6 +33,15 @@ def test_scripted_demo_on_an_empty_table_succeeds_and_writes_a_video(tmp_path):
 
     if result.video.suffix == ".mp4":
         assert iio.immeta(result.video)["fps"] == pytest.approx(25.0)  # 50 frames per simulated second, 2x slower
+
+
+def test_planner_demo_in_the_default_scene_runs_through_the_cli(tmp_path, capsys):
+    code = main(["demo", "--controller", "planner", "--out", str(tmp_path), "--no-video"])
+    assert code == 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["controller"].startswith("planner")
+    assert summary["outcome"] in EVENTS and summary["outcome"] != "running"
+    assert "planner" in capsys.readouterr().out
 
 
 def test_demo_cli_reports_errors_without_a_traceback(tmp_path, capsys):

@@ -46,21 +46,24 @@ def run_demo(out_dir: str | Path = "demo_output", controller: str = "policy", po
     """One rollout in the default cluttered scene (ground-truth semantics judge every object).
 
     ``controller="policy"``: a shipped or trained policy sees the ``selector``'s k relevant objects
-    through the reducer; ``"scripted"``: the fast-pull-then-slide baseline that ignores the clutter.
+    through the reducer; ``"scripted"``: the fast-pull-then-slide baseline that ignores the clutter;
+    ``"planner"``: the privileged planner that sees the whole scene and drives around it (``control/planner.py``).
     The video has ``fps`` frames per simulated second (rendered between control steps, from inside the
     physics substeps) and plays ``slowmo`` times slower than real time. ``embodiment``: the robot (default:
-    the policy's own, the Panda for the scripted controller); a policy from another one is refused.
+    the policy's own, the Panda for the scripted controller and the planner); a policy from another one is
+    refused.
     """
+    from safemanip.control.planner import GridPlanner
     from safemanip.control.scripted import ScriptedController
     from safemanip.env.slide_out import SlideOutEnv
 
-    if controller not in ("policy", "scripted"):
-        raise ValueError(f"unknown controller {controller!r}: use 'policy' or 'scripted'")
+    if controller not in ("policy", "scripted", "planner"):
+        raise ValueError(f"unknown controller {controller!r}: use 'policy', 'scripted' or 'planner'")
     if fps not in VIDEO_FPS:
         raise ValueError(f"--fps must be one of {VIDEO_FPS} frames per simulated second, got {fps!r}")
     if not (isinstance(slowmo, (int, float)) and 1.0 <= slowmo <= 100.0):
         raise ValueError(f"--slowmo must be a number from 1 (real time) to 100, got {slowmo!r}")
-    action_curve = 1.0  # the scripted controller commands speeds linearly
+    action_curve = 1.0  # the scripted controller and the planner command speeds linearly
     if controller == "policy":  # the policy file is checked before anything is built or written
         from safemanip.rl.checkpoint import embodiment_problem, load_policy, policy_action_curve, policy_embodiment
 
@@ -95,10 +98,10 @@ def run_demo(out_dir: str | Path = "demo_output", controller: str = "policy", po
         env.watch_substeps(env.n_substeps // 5, film)
 
     t0 = time.perf_counter()
-    if controller == "scripted":
-        agent = ScriptedController()
-        agent.reset()
+    if controller in ("scripted", "planner"):
+        agent = ScriptedController() if controller == "scripted" else GridPlanner()
         _, info = env.reset(seed=seed)
+        agent.reset(env)
         record(env, info)
         while True:
             _, _, terminated, truncated, info = env.step(agent.act(info, env))
@@ -106,7 +109,8 @@ def run_demo(out_dir: str | Path = "demo_output", controller: str = "policy", po
             if terminated or truncated:
                 break
         event, culprit, steps = info["event"], info["object"], info["t"]
-        agent_desc = "scripted (fast pull, then a slide to the goal; ignores the clutter)"
+        agent_desc = ("scripted (fast pull, then a slide to the goal; ignores the clutter)" if controller == "scripted"
+                      else "planner (sees the whole scene: fast pull, then a path through the clutter's free space)")
     else:
         from safemanip.evaluation.episode import run_episode
         from safemanip.rl.checkpoint import resolve_policy

@@ -32,15 +32,16 @@ def register(sub) -> None:
 
     demo = sub.add_parser("demo", help="one rollout in the default cluttered scene: video, JSON summary, report")
     demo.add_argument("--out", default="demo_output", help="output folder (default: demo_output)")
-    demo.add_argument("--controller", default="policy", choices=["policy", "scripted"],
-                      help="the shipped reach-avoid policy (default) or the scripted baseline")
+    demo.add_argument("--controller", default="policy", choices=["policy", "scripted", "planner"],
+                      help="the shipped reach-avoid policy (default), the scripted baseline, or the privileged "
+                           "planner that sees the whole scene")
     demo.add_argument("--policy", default="rarl-k2-conservative", help="policy file or shipped policy name")
     demo.add_argument("--selector", default="dynamic-knn", help="object selector feeding the policy its k objects")
     demo.add_argument("--seed", type=SEED, default=7)
     demo.add_argument("--n-objects", type=int_in(0, MAX_OBJECTS), default=4, help="objects in the scene (N)")
     demo.add_argument("--camera", default="front", choices=["front", "top"])
     demo.add_argument("--embodiment", choices=["panda", "hand"],
-                      help="robot (default: the policy's own; the Panda for --controller scripted)")
+                      help="robot (default: the policy's own; the Panda for the scripted controller and the planner)")
     demo.add_argument("--no-video", action="store_true", help="skip rendering (faster, no OpenGL needed)")
     demo.add_argument("--fps", type=int, default=50, choices=[20, 25, 50, 100],
                       help="video frames per simulated second, rendered between control steps (default 50)")

@@ -17,7 +17,8 @@ class ScriptedController:
         self.slide_speed = slide_speed
         self.lift = lift
 
-    def reset(self) -> None:
+    def reset(self, env=None) -> None:
+        """Start a new episode (``env`` is accepted for the planner's signature; this controller needs no map)."""
         self._pulled_out = False
 
     def act(self, info: dict, env) -> np.ndarray:
