@@ -113,6 +113,30 @@ def test_a_saturated_actor_is_reported():
     assert learner.update(batch(), 0.99)["actor/saturated"] == 1.0
 
 
+def test_the_preactivation_penalty_adds_its_term_and_pulls_a_saturated_actor_back():
+    b = batch()
+    losses = {}
+    for weight in (0.0, 0.5):
+        torch.manual_seed(4)
+        learner = Learner(OBS, ACT, TrainConfig(**SMALL, policy_delay=1, actor_preactivation_penalty=weight))
+        with torch.no_grad():
+            before = learner.actor.pre_tanh(b.obs).pow(2).mean().item()
+        losses[weight] = learner.update(b, 0.99)["loss/actor"]
+    # the same networks and batch: the critic step is the same, the actor loss differs by the penalty alone
+    assert losses[0.5] - losses[0.0] == pytest.approx(0.5 * before, rel=1e-4)
+
+    torch.manual_seed(3)
+    learner = Learner(OBS, ACT, TrainConfig(**SMALL, policy_delay=1, actor_preactivation_penalty=1.0))
+    with torch.no_grad():
+        learner.actor.net[-1].bias.fill_(3.0)  # tanh(3) > 0.99: every action component saturated
+    assert learner.update(b, 0.99)["actor/saturated"] == 1.0
+    for _ in range(150):
+        saturated = learner.update(b, 0.99)["actor/saturated"]
+    assert saturated < 0.5, "the penalty should bring the pre-activations back below tanh's knee"
+    with pytest.raises(ConfigError, match="actor_preactivation_penalty"):
+        TrainConfig(**SMALL, actor_preactivation_penalty=-1.0).validate()
+
+
 def test_learning_rate_schedule_is_a_cosine_from_the_rate_to_the_final_one_and_reaches_the_optimisers():
     constant = TrainConfig(**SMALL)
     assert constant.learning_rate_at(0.0) == constant.learning_rate_at(0.7) == constant.learning_rate

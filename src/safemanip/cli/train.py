@@ -34,6 +34,9 @@ FLAGS = {
                               "let both learning rates fall on a cosine to this over the budget (default: constant)"),
     "--noise-color": ("noise_color", float_in(0, 2), "exploration noise spectrum 1/f^beta: 0 white (default), "
                                                      "1 pink, 2 red (correlated over an episode)"),
+    "--actor-preactivation-penalty": ("actor_preactivation_penalty", float_in(0, 10),
+                                      "weight of mean(pre-tanh action^2) in the actor loss, against a saturated "
+                                      "actor (default 0: off; try 1e-3)"),
     "--env-steps-per-update": ("env_steps_per_update", float_in(0, 10_000, lo_open=True),
                                "environment steps collected per learner update"),
     "--eval-every-s": ("eval_every_s", float_in(0, 86_400, lo_open=True), "seconds between evaluations"),

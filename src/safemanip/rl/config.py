@@ -76,6 +76,11 @@ class TrainConfig:
     target_noise_clip: float = 0.05
     policy_delay: int = 2
     """Actor and target networks are updated every this many critic updates."""
+    actor_preactivation_penalty: float = 0.0
+    """Weight of mean(u^2), u the actor's output before its tanh, added to the actor loss (0: off). A DDPG actor
+    can drive u far past the tanh's knee, where its gradient vanishes and it emits one constant action for good
+    (logged as ``actor/saturated``); this keeps u near the range where tanh still bends. 1e-3 changes
+    nothing for |u| < 1 (a 1e-3 loss against Q's O(0.1)) and pulls hard on |u| > 10."""
     # -- exploration and data flow
     exploration_noise: float = 0.3
     """Std of the Gaussian noise added to the actor's actions in [-1, 1] during collection."""
@@ -194,6 +199,8 @@ class TrainConfig:
             problems.append("policy_delay and torch_threads must be >= 1")
         if self.exploration_noise < 0 or self.target_noise < 0 or self.target_noise_clip < 0:
             problems.append("exploration_noise, target_noise and target_noise_clip must be >= 0")
+        if not (math.isfinite(self.actor_preactivation_penalty) and 0 <= self.actor_preactivation_penalty <= 10):
+            problems.append(f"actor_preactivation_penalty must be from 0 (off) to 10, got {self.actor_preactivation_penalty}")
         if not 0 <= self.noise_color <= 2:
             problems.append(f"noise_color must be from 0 (white) to 2 (red), got {self.noise_color}")
         for name in ("eval_every_s", "checkpoint_every_s", "log_every_s"):

@@ -107,9 +107,12 @@ class Learner:
         if self.updates % cfg.policy_delay == 0:
             self.critic.requires_grad_(False)  # the actor loss needs no critic weight gradients
             with self.autocast():
-                actions = self.actor(batch.obs)
+                pre_tanh = self.actor.pre_tanh(batch.obs)
+                actions = torch.tanh(pre_tanh)
                 q1 = self.critic(batch.obs, actions, head=0)
             actor_loss = -q1.float().mean()
+            if cfg.actor_preactivation_penalty > 0:  # keeps the actor where tanh still has a gradient
+                actor_loss = actor_loss + cfg.actor_preactivation_penalty * pre_tanh.float().pow(2).mean()
             self.critic.requires_grad_(True)
             self.actor_opt.zero_grad(set_to_none=True)
             actor_loss.backward()

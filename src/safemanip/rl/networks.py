@@ -82,8 +82,12 @@ class Actor(nn.Module):
         super().__init__()
         self.net = mlp([obs_dim, *hidden, act_dim])
 
+    def pre_tanh(self, obs: torch.Tensor) -> torch.Tensor:
+        """The action before its tanh squashing (what ``TrainConfig.actor_preactivation_penalty`` keeps small)."""
+        return self.net(obs)
+
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        return torch.tanh(self.net(obs))
+        return torch.tanh(self.pre_tanh(obs))
 
 
 class Critic(nn.Module):
@@ -142,8 +146,12 @@ class SetActor(nn.Module):
         super().__init__()
         self.net = SetNet(1, 0, act_dim, hidden, embed, object_size)
 
+    def pre_tanh(self, obs: torch.Tensor) -> torch.Tensor:
+        """The action before its tanh squashing."""
+        return self.net(obs)[0]
+
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        return torch.tanh(self.net(obs)[0])
+        return torch.tanh(self.pre_tanh(obs))
 
 
 class SetCritic(nn.Module):
