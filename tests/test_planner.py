@@ -125,19 +125,15 @@ def test_the_planner_places_the_box_on_an_empty_table_within_the_panda_limits():
 
 
 @pytest.mark.slow
-def test_a_walled_off_scene_is_reported_and_the_pull_still_leaves_the_top_box_in_place():
+def test_a_walled_off_scene_is_reported_and_the_pull_still_leaves_the_top_box_in_place(monkeypatch):
+    import safemanip.control.planner as planner_module
+
     env = SlideOutEnv(n_objects=0, embodiment="panda")
     planner = GridPlanner()
     _, info = env.reset(seed=3)
     wall = [(0.15, y, 0.03, 0.0, 0.2) for y in np.arange(-0.45, 0.46, 0.04)]
-    import safemanip.control.planner as planner_module
-
-    original = planner_module.part_extents
-    planner_module.part_extents = lambda env: wall
-    try:
-        planner.reset(env)
-    finally:
-        planner_module.part_extents = original
+    monkeypatch.setattr(planner_module, "part_extents", lambda env: wall)
+    planner.reset(env)
     assert planner.clearance is None, "no clearance reaches the goal through the wall"
     for _ in range(6):  # the pull: fast and straight out, so the top box stays in its safe set
         _, _, terminated, _, info = env.step(planner.act(info, env))

@@ -23,7 +23,7 @@ import numpy as np
 from safemanip.scene.panda import holding_reach
 
 GRID = 0.01
-"""Grid spacing of the planner's free-space map [m] (``scene_feasibility.py`` uses 5 mm)."""
+"""Grid spacing of the planner's free-space map [m] (``scene_feasibility.py``'s box-alone test uses 5 mm)."""
 
 _NEIGHBOURS = [(dx, dy, math.hypot(dx, dy)) for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy]
 
@@ -74,12 +74,6 @@ def part_extents(env) -> list[tuple[float, float, float, float, float]]:
             parts.append((float(x + t * axis[0]), float(y + t * axis[1]), radius,
                           float(z - half_height), float(z + half_height)))
     return parts
-
-
-def part_circles(env) -> list[tuple[float, float, float]]:
-    """(x, y, radius) of every object geom that reaches below the held box's top, at its current pose."""
-    box_top = 2 * env.geometry.box_half_extents[2]
-    return [(x, y, r) for x, y, r, z_low, _ in part_extents(env) if z_low < box_top]
 
 
 def hand_footprint(env, below: float) -> list[tuple[float, float, float, float, float, float]]:
@@ -259,8 +253,8 @@ class GridPlanner:
         self._space, self._speed = space, np.asarray(self.speeds)[level]
         self._field = space.distance_to_goal(1.0 + np.asarray(self.penalties)[level], goal)
         sx, sy = env.geometry.path_start_xy
-        reaching = [c for c, sp in zip(self.clearances, spaces) if sp.reachable_from(sx, sy)]
-        self.clearance = reaching[0] if reaching else None  # the room the scene leaves (None: walled off)
+        # the room the scene leaves (None: walled off): the widest clearance that reaches the goal, tried widest first
+        self.clearance = next((c for c, sp in zip(self.clearances, spaces) if sp.reachable_from(sx, sy)), None)
 
     def act(self, info: dict, env) -> np.ndarray:
         """Action in [-1, 1]^3 for the env's current state."""
