@@ -1,10 +1,15 @@
 """How many scenes leave the box a way to the goal at all? Geometric ceilings on success, per N.
 
     python benchmarks/scene_feasibility.py [--objects 2 3 4 5 6] [--scenes 500] [--seed 9] [--planner]
+                                           [--layout route|straight]
     python benchmarks/scene_feasibility.py --results EVAL_DIR [EVAL_DIR ...]
 
 A learned policy's success rate means little without a ceiling: a scene whose clutter walls off the
-goal fails whatever the learner does. Two questions per scene:
+goal fails whatever the learner does, and one with nothing in the way asks little of it. Three
+questions per scene:
+
+- "straight way blocked": would the box and hand, carried straight from the lane to the goal, come
+  within d4 of an object part? Those are the scenes where avoiding something is part of the task.
 
 - "box alone": can the held box, translating at its fixed orientation (the controller holds the
   hand's), slide from where it leaves the lane under the top box (``path_start_xy``) to the goal
@@ -16,6 +21,10 @@ goal fails whatever the learner does. Two questions per scene:
   with the hand down, joints inside their ranges). On the 1 cm grid of the planner
   (``control/planner.py``), which drives through exactly these scenes. Not a strict bound: the reach
   map's edge is within a couple of centimetres, and a policy can lift the box 2 cm over flat parts.
+
+Scenes come in the env's default layout, which keeps a route clear for the box and hand (``--layout route``;
+every scene should be open for the arm), or in the straight-corridor layout of results before 2026-12-02
+(``--layout straight``), in which most scenes with N >= 3 are not.
 
 With ``--planner``, the privileged planner (``control/planner.py``: it sees every object) also drives each
 scene, and its success is printed over all scenes and over those open for the arm: what a controller
@@ -42,7 +51,7 @@ import time
 
 import numpy as np
 
-from safemanip.control.planner import FreeSpace, GridPlanner, part_extents
+from safemanip.control.planner import FreeSpace, GridPlanner, open_for_the_arm, part_extents
 from safemanip.scene.panda import holding_reach
 
 GRID = 0.005  # m
@@ -55,11 +64,13 @@ def reachable(env, margin: float = 0.0, parts=None) -> bool:
     return FreeSpace(env, margin, grid=GRID, hand=False, parts=parts).reachable_from(sx, sy)
 
 
-def open_for_the_arm(env, parts=None) -> bool:
-    """Whether the Panda can carry the box from the lane to the goal: the box and the hand and fingers clear every
-    part by d4, on the planner's 1 cm grid, and the box stays where the arm can hold it (``holding_reach``)."""
-    sx, sy = env.geometry.path_start_xy
-    return FreeSpace(env, 0.0, parts=parts, reach=holding_reach(env.geometry)).reachable_from(sx, sy)
+def straight_way_blocked(env, parts=None) -> bool:
+    """Whether the box and hand, carried straight from the lane to the goal, would come within d4 of an object
+    part: the scenes in which avoiding something is part of the task (1 cm steps on the planner's grid)."""
+    space = FreeSpace(env, 0.0, parts=parts)
+    start, goal = np.asarray(env.geometry.path_start_xy), np.asarray(env.geometry.goal_xy)
+    steps = int(np.ceil(np.linalg.norm(goal - start) / 0.01)) + 1
+    return not all(space.free[space.cell(*(start + t * (goal - start)))] for t in np.linspace(0.0, 1.0, steps))
 
 
 GAP_MARGINS = (0.0, 0.02, 0.04, 0.06, 0.08, 0.10, 0.15)
@@ -86,7 +97,8 @@ def results_by_scene(folder: str) -> None:
     from safemanip.env.slide_out import SlideOutEnv
 
     summary = json.loads((Path(folder) / "summary.json").read_text())
-    env_kwargs = summary["eval"]["env_kwargs"]
+    env_kwargs = dict(summary["eval"]["env_kwargs"])
+    env_kwargs.setdefault("clear_route", False)  # evaluations that do not record it ran on the straight layout
     env = SlideOutEnv(**env_kwargs)
     episodes = list(csv.DictReader((Path(folder) / "episodes.csv").open()))
     by_gap: dict = {}
@@ -127,6 +139,8 @@ def main() -> None:
     p.add_argument("--scenes", type=int, default=500)
     p.add_argument("--seed", type=int, default=9, help="scene seeds are seed * 100000 + i")
     p.add_argument("--planner", action="store_true", help="also drive every scene with the privileged planner")
+    p.add_argument("--layout", choices=("route", "straight"), default="route",
+                   help="the default layout with a route kept clear, or the old straight corridor")
     p.add_argument("--results", nargs="+", metavar="EVAL_DIR",
                    help="instead: success by the room each scene leaves, for these evaluations' episodes")
     args = p.parse_args()
@@ -140,15 +154,18 @@ def main() -> None:
     from safemanip.evaluation.stats import wilson_interval
 
     holding_reach(SlideOutEnv(n_objects=0).geometry)  # the reach map once, outside the timing
-    columns = ["box alone", "open for the arm"] + (["planner", "planner, open scenes"] if args.planner else [])
+    columns = ["straight way blocked", "box alone", "open for the arm"] + (["planner", "planner, open scenes"] if args.planner else [])
+    print(f"layout: {args.layout}")
     print(f"{'N':>2} {'scenes':>6} " + " ".join(f"{c:>22}" for c in columns) + f" {'ms/scene':>8}")
     for n in args.objects:
-        env = SlideOutEnv(n_objects=n, classes=f"{n} fragile", constraints="conservative")
+        env = SlideOutEnv(n_objects=n, classes=f"{n} fragile", constraints="conservative",
+                          clear_route=args.layout == "route")
         t0 = time.perf_counter()
-        alone = arm = placed = placed_open = 0
+        blocked = alone = arm = placed = placed_open = 0
         for i in range(args.scenes):
             _, info = env.reset(seed=args.seed * 100_000 + i)
             parts = part_extents(env)
+            blocked += straight_way_blocked(env, parts)
             alone += reachable(env, parts=parts)
             is_open = open_for_the_arm(env, parts)
             arm += is_open
@@ -158,7 +175,7 @@ def main() -> None:
                 placed_open += success and is_open
         ms = (time.perf_counter() - t0) / args.scenes * 1e3
         cells = []
-        for hits, total in ((alone, args.scenes), (arm, args.scenes), (placed, args.scenes), (placed_open, arm)):
+        for hits, total in ((blocked, args.scenes), (alone, args.scenes), (arm, args.scenes), (placed, args.scenes), (placed_open, arm)):
             if len(cells) < len(columns):
                 lo, hi = wilson_interval(hits, max(total, 1))
                 cells.append(f"{hits / max(total, 1):.1%} [{lo:.1%}, {hi:.1%}]")

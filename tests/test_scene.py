@@ -10,7 +10,8 @@ from safemanip.scene.builder import build_model
 from safemanip.scene.catalog import (CONSTRAINT_OF_CLASS, CONSTRAINT_TYPES, SEMANTIC_CLASSES, CatalogError, _parse,
                                      load_catalog, names_of_class)
 from safemanip.scene.config import GEOMETRY, MAX_OBJECTS, SceneConfig, SceneConfigError, parse_semantics
-from safemanip.scene.placement import _CLEARANCE, PlacementError, sample_placement
+from safemanip.scene.placement import (_CLEARANCE, INNER_SHARE, NEAR_ROUTE_GAP, ROUTE_BEND, PlacementError,
+                                       sample_placement, sample_route)
 
 CATALOG = load_catalog()
 ALL_RADII = np.array([CATALOG[n].footprint_radius for n in sorted(CATALOG)])
@@ -405,3 +406,60 @@ def test_batched_placement_equals_drawing_one_try_at_a_time():
         assert a.bit_generator.state == b.bit_generator.state, seed
         crowded += int(fraction == 1.0 and not near.all())
     assert crowded > 0  # the fall-back path was exercised
+
+
+# ================================================================== route layout (the default)
+
+
+def _band_gap(xy, r, route):
+    """Distance from a footprint circle's edge to the route's kept-clear band (negative if they overlap)."""
+    hx, hy = route.half_extents
+    d = np.maximum(np.abs(np.asarray(xy)[None, :] - route.points) - np.array([hx, hy]), 0.0)
+    return float(np.hypot(d[:, 0], d[:, 1]).min()) - r
+
+
+def test_a_route_runs_from_the_lane_to_the_goal_with_a_bend_in_range():
+    far_neg, near_neg, near_pos, far_pos = ROUTE_BEND
+    bends = []
+    for seed in range(200):
+        route = sample_route(np.random.default_rng(seed))
+        assert np.allclose(route.points[0], START) and np.allclose(route.points[-1], GOAL)
+        assert np.linalg.norm(np.diff(route.points, axis=0), axis=1).max() <= 0.02 + 1e-9
+        assert far_neg <= route.bend <= near_neg or near_pos <= route.bend <= far_pos, route.bend
+        bends.append(route.bend)
+    assert 0.3 < np.mean(np.asarray(bends) > 0) < 0.7  # both sides
+
+
+def test_route_layout_keeps_the_band_clear_and_puts_near_objects_beside_it():
+    rng = np.random.default_rng(5)
+    gaps, inner, straight_blocked = [], [], 0
+    for seed in range(150):
+        n = int(rng.integers(1, MAX_OBJECTS + 1))
+        radii = rng.choice(ALL_RADII, size=n, replace=False)
+        draw = np.random.default_rng(seed)
+        route = sample_route(draw)
+        p = sample_placement(radii, draw, 0.5, route=route)
+        _check_placement(p, radii)
+        assert p.route is route
+        for i in range(n):
+            gap = _band_gap(p.xy[i], radii[i], route)
+            assert gap >= _CLEARANCE - 1e-9, f"seed {seed}: object {i} stands on the route ({gap:.4f} m)"
+            if p.near_path[i]:
+                assert gap <= _CLEARANCE + 0.30 + 1e-6, f"seed {seed}: near-path object {i} is {gap:.3f} m away"
+                gaps.append(gap)
+                # inside the bend = on the side of the nearest route segment away from the bend
+                j = min(int(np.argmin(np.linalg.norm(route.points - p.xy[i], axis=1))), len(route.points) - 2)
+                step = route.points[j + 1] - route.points[j]
+                side = np.sign((p.xy[i] - route.points[j]) @ np.array([-step[1], step[0]]))
+                inner.append(side != np.sign(route.bend))
+    assert np.mean(np.asarray(gaps) <= _CLEARANCE + NEAR_ROUTE_GAP + 1e-6) > 0.8  # the close band is the rule
+    # INNER_SHARE of the tries go inside the bend; the stack's keep-out rejects some of them near the lane
+    assert 0.5 < np.mean(inner) <= INNER_SHARE + 0.05, np.mean(inner)
+
+
+def test_route_layout_is_deterministic_for_a_seed():
+    radii = ALL_RADII[:6]
+    a, b = np.random.default_rng(3), np.random.default_rng(3)
+    pa, pb = sample_placement(radii, a, 0.5, route=sample_route(a)), sample_placement(radii, b, 0.5, route=sample_route(b))
+    assert np.array_equal(pa.xy, pb.xy) and np.array_equal(pa.route.points, pb.route.points)
+    assert a.bit_generator.state == b.bit_generator.state

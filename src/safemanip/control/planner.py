@@ -108,6 +108,14 @@ def hand_footprint(env, below: float) -> list[tuple[float, float, float, float, 
     return [(lo[0] - box[0], hi[0] - box[0], lo[1] - box[1], hi[1] - box[1], lo[2], hi[2]) for lo, hi in boxes.values()]
 
 
+def open_for_the_arm(env, parts=None) -> bool:
+    """Whether the Panda can carry the box from the lane to the goal in this scene: the box, hand and fingers
+    clear every object part by d4 on the 1 cm grid, and the box stays where the arm can hold it
+    (``holding_reach``, "any" edge). ``parts``: the scene's ``part_extents``, if already computed."""
+    sx, sy = env.geometry.path_start_xy
+    return FreeSpace(env, 0.0, parts=parts, reach=holding_reach(env.geometry)).reachable_from(sx, sy)
+
+
 class FreeSpace:
     """The held box centre's free space on a grid over the table, for one scene and one clearance.
 

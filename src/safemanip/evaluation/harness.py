@@ -255,6 +255,7 @@ def prepare(req: EvalRequest) -> Prepared:
     env_train = meta["env_kwargs"]
     env_kwargs = {"n_objects": n, "classes": classes, "constraints": JUDGES[req.judge],
                   "near_path_fraction": env_train.get("near_path_fraction", 0.5),
+                  "clear_route": env_train.get("clear_route", True),
                   "max_episode_steps": req.max_episode_steps or env_train.get("max_episode_steps", 300),
                   "embodiment": env_train["embodiment"], "action_curve": policy_action_curve(meta)}
     options = SelectorOptions(interval=req.interval, vlm_backend=req.vlm_backend or "semantic", vlm_model=req.vlm_model,

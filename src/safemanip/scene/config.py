@@ -81,7 +81,12 @@ class SceneConfig:
     """Semantic class per object (fragile/soft/durable); names are drawn from the catalog per episode.
     None: any class."""
     near_path_fraction: float = 0.5
-    """Share of the clutter placed near the straight path from the pulled-out box to the goal."""
+    """Share of the clutter placed near the path from the pulled-out box to the goal."""
+    clear_route: bool = True
+    """Keep a route from the lane to the goal clear for the held box and the hand (``placement.sample_route``),
+    with the near-path objects beside it, so every scene can be solved. False: the near-path objects stand
+    anywhere around the straight path (the layout of results before 2026-12-02), which walls off most scenes
+    with N >= 3 for a Panda."""
     extra: dict = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self):

@@ -3,6 +3,12 @@
 Objects are approximated by their footprint circles; the sampler rejects any overlap with other
 objects, with the cereal-box stack and its pull-out region, and with the goal region (an object in
 the goal would make the task impossible).
+
+With a ``Route`` (``sample_route``), the near-path objects stand just beside a bent way from the lane to
+the goal that is kept clear for the held box and the hand, and no object may stand on it: the scene needs
+avoidance but always leaves a way. Without one, objects stand anywhere in a corridor around the straight
+path, which on a Panda's table walls off most scenes with three or more objects (the arm cannot hold the
+box far enough aside to go round them; ``benchmarks/scene_feasibility.py``).
 """
 
 from __future__ import annotations
@@ -16,9 +22,40 @@ from safemanip.scene.config import GEOMETRY, SceneConfigError, TaskGeometry
 
 _CLEARANCE = 0.015  # gap between footprints so objects never start in contact
 
+ROUTE_BEND = (-0.15, -0.06, 0.06, 0.12)
+"""The route's sideways bend [m]: its waypoint sits off the straight path from the lane to the goal by a
+uniform draw from [-0.15, -0.06] or [0.06, 0.12] (+: away from the robot; each side equally likely). The
+outer bounds keep the held box where a Panda at its base can hold it (``scene.panda.holding_reach``): further
+towards the robot the base is in the way, further away it is out of reach. The inner ones make the route
+bend enough that objects inside the bend stand on the straight path."""
+ROUTE_HAND_OVERHANG = 0.03
+"""How far the Panda's hand and fingers stick out past the held box's pulled edge (+x) [m]."""
+ROUTE_CLEARANCE = 0.02
+"""Room kept around the held box and hand along the route [m]: the collision threshold d4 (1 cm) and 1 cm
+more, so a controller that follows the route is not judged to collide."""
+NEAR_ROUTE_GAP = 0.06
+"""A near-path object stands at most this far outside the route's kept-clear band [m] (0.30 if crowded)."""
+NEAR_ROUTE_SPAN = (0.25, 0.75)
+"""Where along the route (fractions of its length) near-path objects stand: around the bend, where the route
+leaves the straight path."""
+INNER_SHARE = 0.9
+"""Share of near-path objects on the inside of the route's bend, where the straight path runs: those make a
+controller that heads straight for the goal hit something, so the bend has to be followed."""
+
 
 class PlacementError(SceneConfigError):
     pass
+
+
+@dataclass(frozen=True)
+class Route:
+    """A way for the held box's centre from the lane to the goal: two straight legs through a waypoint. A band
+    around it (``half_extents`` around every point, the box and hand plus ``ROUTE_CLEARANCE``) stays clear."""
+
+    points: np.ndarray  # (M, 2) the box centre every ~2 cm along the way
+    half_extents: tuple[float, float]  # of the axis-aligned rectangle kept clear around each point
+    waypoint: tuple[float, float]
+    bend: float  # the waypoint's offset from the straight path [m], + away from the robot
 
 
 @dataclass(frozen=True)
@@ -26,6 +63,58 @@ class Placement:
     xy: np.ndarray  # (N, 2)
     yaw: np.ndarray  # (N,)
     near_path: np.ndarray  # (N,) bool
+    route: Route | None = None
+
+
+def sample_route(rng: np.random.Generator, geometry: TaskGeometry = GEOMETRY, spacing: float = 0.02) -> Route:
+    """A route bent sideways by ``ROUTE_BEND`` at a uniform point 35–65 % of the way (two draws from ``rng``)."""
+    start, goal = np.asarray(geometry.path_start_xy, float), np.asarray(geometry.goal_xy, float)
+    along, side = rng.uniform(0.35, 0.65), rng.uniform(-1.0, 1.0)
+    far_neg, near_neg, near_pos, far_pos = ROUTE_BEND
+    bend = near_neg - side * (far_neg - near_neg) if side < 0 else near_pos + side * (far_pos - near_pos)
+    direction = goal - start
+    normal = np.array([-direction[1], direction[0]]) / np.linalg.norm(direction)
+    waypoint = start + along * direction + bend * normal
+    legs = []
+    for a, b in ((start, waypoint), (waypoint, goal)):
+        count = max(2, int(np.ceil(np.linalg.norm(b - a) / spacing)) + 1)
+        legs.append(a + np.linspace(0.0, 1.0, count)[:, None] * (b - a))
+    hx, hy, _ = geometry.box_half_extents
+    half = (hx + ROUTE_HAND_OVERHANG + ROUTE_CLEARANCE, hy + ROUTE_CLEARANCE)
+    return Route(points=np.concatenate([legs[0], legs[1][1:]]), half_extents=half,
+                 waypoint=(float(waypoint[0]), float(waypoint[1])), bend=float(bend))
+
+
+def _route_frame(route: Route) -> tuple:
+    """The route's segments once per placement: (points, steps, lengths, cumulative lengths, unit normals)."""
+    steps = np.diff(route.points, axis=0)
+    seg_len = np.linalg.norm(steps, axis=1)
+    normals = np.stack([-steps[:, 1], steps[:, 0]], axis=1) / seg_len[:, None]
+    return route.points, steps, seg_len, np.concatenate([[0.0], np.cumsum(seg_len)]), normals
+
+
+def _beside_route(route: Route, frame: tuple, r: float, gap: float):
+    """Map two uniform draws per try to a point just outside the route's band: the first picks where along the
+    way (``NEAR_ROUTE_SPAN``), the second the side (the inside of the bend with probability ``INNER_SHARE``)
+    and how far out (uniform, up to ``gap`` beyond the band's edge)."""
+    points, steps, seg_len, cum, normals = frame
+    hx, hy = route.half_extents
+    inner_sign = 1.0 if route.bend >= 0 else -1.0
+
+    def to_xy(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        s = (NEAR_ROUTE_SPAN[0] + (NEAR_ROUTE_SPAN[1] - NEAR_ROUTE_SPAN[0]) * u[:, 0]) * cum[-1]
+        seg = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(steps) - 1)
+        base = points[seg] + ((s - cum[seg]) / seg_len[seg])[:, None] * steps[seg]
+        n = normals[seg]
+        inner = u[:, 1] < INNER_SHARE
+        beyond = np.where(inner, u[:, 1] / INNER_SHARE, (u[:, 1] - INNER_SHARE) / (1.0 - INNER_SHARE)) * gap
+        # the band's half-width across the way (the kept rectangle's support along the normal), the object's
+        # radius and clearance, then 0 to ``gap`` more; the straight path lies on the -normal side of both legs
+        # when the route bends to +normal
+        out = np.abs(n[:, 0]) * hx + np.abs(n[:, 1]) * hy + r + _CLEARANCE + 1e-6 + beyond
+        offset = np.where(inner, -inner_sign, inner_sign) * out
+        return base[:, 0] + offset * n[:, 0], base[:, 1] + offset * n[:, 1]
+    return to_xy
 
 
 def _keep_out_rects(geo: TaskGeometry) -> list[tuple[float, float, float, float]]:
@@ -39,7 +128,7 @@ def _keep_out_rects(geo: TaskGeometry) -> list[tuple[float, float, float, float]
 
 
 def _free(x: float, y: float, r: float, placed: list[tuple[float, float, float]], geo: TaskGeometry,
-          keep_out: list[tuple[float, float, float, float]]) -> bool:
+          keep_out: list[tuple[float, float, float, float]], route: Route | None = None) -> bool:
     """Scalar maths on Python floats: this runs a few times per object on every reset."""
     tx, ty = geo.table_half_extents
     if abs(x) > tx - r - 0.03 or abs(y) > ty - r - 0.03:
@@ -57,21 +146,32 @@ def _free(x: float, y: float, r: float, placed: list[tuple[float, float, float]]
     for px, py, pr in placed:
         if math.hypot(x - px, y - py) < r + pr + _CLEARANCE:
             return False
+    if route is not None:
+        return bool(_route_gap_squared(np.array([x]), np.array([y]), route)[0] >= (r + _CLEARANCE) ** 2)
     return True
 
 
+def _route_gap_squared(xs: np.ndarray, ys: np.ndarray, route: Route) -> np.ndarray:
+    """Squared distance from each point to the route's kept-clear band (the union of its rectangles)."""
+    hx, hy = route.half_extents
+    ex = np.maximum(np.abs(xs[:, None] - route.points[:, 0]) - hx, 0.0)
+    ey = np.maximum(np.abs(ys[:, None] - route.points[:, 1]) - hy, 0.0)
+    return (ex * ex + ey * ey).min(axis=1)
+
+
 def sample_placement(radii: np.ndarray, rng: np.random.Generator, near_path_fraction: float = 0.5,
-                     geometry: TaskGeometry = GEOMETRY, max_tries: int = 1000) -> Placement:
+                     geometry: TaskGeometry = GEOMETRY, max_tries: int = 1000, route: Route | None = None) -> Placement:
     """Place objects with footprint ``radii`` without overlap.
 
-    ``round(near_path_fraction * N)`` objects go within a corridor of half-width 0.14 m (0.30 m if crowded) around the
-    segment from the pulled-out box to the goal (so the task needs avoidance), as long as it has room
-    (``near_path`` says which did); the rest anywhere on the free table. Deterministic for a given
-    generator state.
+    ``round(near_path_fraction * N)`` objects go near the task path, as long as it has room (``near_path`` says
+    which did); the rest anywhere on the free table. Without a ``route``, near means within a corridor of
+    half-width 0.14 m (0.30 m if crowded) around the segment from the pulled-out box to the goal. With one,
+    near means at most ``NEAR_ROUTE_GAP`` (0.30 m if crowded) outside the route's band, and no object stands
+    on the band. Deterministic for a given generator state.
     """
     n = len(radii)
     if n == 0:  # draws nothing, as the general path would
-        return Placement(xy=np.zeros((0, 2)), yaw=np.zeros(0), near_path=np.zeros(0, dtype=bool))
+        return Placement(xy=np.zeros((0, 2)), yaw=np.zeros(0), near_path=np.zeros(0, dtype=bool), route=route)
     n_near = int(round(near_path_fraction * n))
     sx, sy = (float(v) for v in geometry.path_start_xy)
     dx, dy = geometry.goal_xy[0] - sx, geometry.goal_xy[1] - sy
@@ -90,6 +190,7 @@ def sample_placement(radii: np.ndarray, rng: np.random.Generator, near_path_frac
     def anywhere(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return -tx + (tx - -tx) * u[:, 0], -ty + (ty - -ty) * u[:, 1]
 
+    frame = _route_frame(route) if route is not None else None
     placed: list[tuple[float, float, float]] = []
     near = np.zeros(n, dtype=bool)
     order = np.argsort(-np.asarray(radii), kind="stable")  # big objects first: fewer rejections
@@ -98,11 +199,15 @@ def sample_placement(radii: np.ndarray, rng: np.random.Generator, near_path_frac
         want_near = rank < n_near
         r = float(radii[i])
         # tries in the corridor (widened if it is crowded), then anywhere free if it is full even so
-        phases = [(max_tries // 4, corridor(0.14)), (max_tries - max_tries // 4, corridor(0.30)),
+        if route is None:
+            close, crowded = corridor(0.14), corridor(0.30)
+        else:
+            close, crowded = _beside_route(route, frame, r, NEAR_ROUTE_GAP), _beside_route(route, frame, r, 0.30)
+        phases = [(max_tries // 4, close), (max_tries - max_tries // 4, crowded),
                   (max_tries, anywhere)] if want_near else [(max_tries, anywhere)]
         found = None
         for tries, to_xy in phases:
-            found = _first_free(rng, tries, r, placed, geometry, keep_out, to_xy)
+            found = _first_free(rng, tries, r, placed, geometry, keep_out, to_xy, route)
             if found is not None:
                 near_try = to_xy is not anywhere
                 break
@@ -114,11 +219,11 @@ def sample_placement(radii: np.ndarray, rng: np.random.Generator, near_path_frac
         placed.append((x, y, r))
         xy_out[i] = x, y
         near[i] = near_try
-    return Placement(xy=xy_out, yaw=rng.uniform(-np.pi, np.pi, size=n), near_path=near)
+    return Placement(xy=xy_out, yaw=rng.uniform(-np.pi, np.pi, size=n), near_path=near, route=route)
 
 
 def _first_free(rng: np.random.Generator, tries: int, r: float, placed: list[tuple[float, float, float]],
-                geo: TaskGeometry, keep_out: list, to_xy) -> tuple[float, float] | None:
+                geo: TaskGeometry, keep_out: list, to_xy, route: Route | None = None) -> tuple[float, float] | None:
     """The first of up to ``tries`` candidates (two uniform draws each, mapped to x, y by ``to_xy``)
     that ``_free`` accepts, consuming exactly the draws a one-at-a-time loop would: the same placements
     for the same generator state, several times faster.
@@ -136,11 +241,11 @@ def _first_free(rng: np.random.Generator, tries: int, r: float, placed: list[tup
         xs, ys = to_xy(u)
         # a first small batch is checked directly (the winner is usually among its first tries, and
         # NumPy's per-call overhead would cost more); later, crowded batches are screened first
-        candidates = range(batch) if done == 0 else np.flatnonzero(_maybe_free(xs, ys, r, placed, geo, keep_out))
+        candidates = range(batch) if done == 0 else np.flatnonzero(_maybe_free(xs, ys, r, placed, geo, keep_out, route))
         xl, yl = xs.tolist(), ys.tolist()
         for j in candidates:
             x, y = xl[j], yl[j]
-            if _free(x, y, r, placed, geo, keep_out):
+            if _free(x, y, r, placed, geo, keep_out, route):
                 rng.bit_generator.state = state
                 rng.random(2 * (j + 1))
                 return x, y
@@ -149,7 +254,7 @@ def _first_free(rng: np.random.Generator, tries: int, r: float, placed: list[tup
 
 
 def _maybe_free(xs: np.ndarray, ys: np.ndarray, r: float, placed: list[tuple[float, float, float]],
-                geo: TaskGeometry, keep_out: list, slack: float = 1e-9) -> np.ndarray:
+                geo: TaskGeometry, keep_out: list, route: Route | None = None, slack: float = 1e-9) -> np.ndarray:
     """``_free``'s tests on arrays, each loosened by ``slack`` (m): a superset of what ``_free`` accepts.
     Few, broadcast operations: on a batch of 16 tries NumPy's per-call overhead is the cost."""
     tx, ty = geo.table_half_extents
@@ -163,4 +268,6 @@ def _maybe_free(xs: np.ndarray, ys: np.ndarray, r: float, placed: list[tuple[flo
     circles = np.array([(gx, gy, goal_clear + r)] + [(px, py, r + pr + _CLEARANCE) for px, py, pr in placed])
     ex, ey = xs[:, None] - circles[:, 0], ys[:, None] - circles[:, 1]
     ok &= (ex * ex + ey * ey >= (circles[:, 2] - slack) ** 2).all(axis=1)
+    if route is not None:
+        ok &= _route_gap_squared(xs, ys, route) >= (r + _CLEARANCE - slack) ** 2
     return ok
