@@ -432,7 +432,7 @@ def test_a_route_runs_from_the_lane_to_the_goal_with_a_bend_in_range():
 
 def test_route_layout_keeps_the_band_clear_and_puts_near_objects_beside_it():
     rng = np.random.default_rng(5)
-    gaps, inner, straight_blocked = [], [], 0
+    gaps, inner = [], []
     for seed in range(150):
         n = int(rng.integers(1, MAX_OBJECTS + 1))
         radii = rng.choice(ALL_RADII, size=n, replace=False)
