@@ -5,7 +5,7 @@ A sweep config is a JSON file (shipped ones live in ``evaluation/sweeps/``; a pa
 too)::
 
   {"name": "fig5", "title": "...", "figure": "fig5" | "fig6" | "table",
-   "episodes": 2000, "seed": 0, "judge": "conservative" | "ground-truth",
+   "episodes": 2000, "seed": 12, "judge": "conservative" | "ground-truth",
    "policies": ["policies/rarl-k2-conservative.safetensors", ...],   each entry may also be
                                                {"path": ..., "n_objects": [...], "semantics": [...]}
                                                to give that policy its own N and semantics
@@ -16,6 +16,10 @@ too)::
    "k_equals_n_selector": "full",              optional: selector used when k == N (the full-state
                                                policy sees every object in its training layout)
    "table": {"rows": ["k"], "columns": ["n_objects", "selector"]}}
+
+``seed`` is the episode seed block (block B = seeds B x 100,000 + i). The shipped sweeps report on block
+12, a block reserved for reported results: no checkpoint, hyper-parameter or classifier is ever chosen on
+it (selection uses block 8).
 
 Policy files are named ``{algorithm}-k{k}-{constraints}.safetensors``, so a cell knows its k (and how
 to train the policy) before the file exists. Cells with k > N are not applicable and left out; a
