@@ -133,3 +133,23 @@ def test_cells_that_query_the_semantic_backend_go_stale_with_its_version(tmp_pat
     assert _done(path, plain_cell)
     path.write_text(json.dumps({"cell": {k: v for k, v in asdict(vlm_cell).items() if k != "vlm"}, "summary": {}}))
     assert not _done(path, vlm_cell)
+
+
+def test_printed_train_command_reproduces_the_shipped_recipe():
+    """A skipped cell's command, parsed by ``safemanip train``, gives the shipped π_2's training config (bar
+    k, the run folder and the bookkeeping fields), so Fig. 5's missing π_3 and π_5 are trained alike."""
+    import shlex
+
+    from safemanip.cli import build_parser
+    from safemanip.cli.train import FLAGS
+    from safemanip.rl.config import TrainConfig
+    from safemanip.rl.checkpoint import load_policy
+
+    cell = next(c for c in cells_of(load_config("fig5")) if c.k == 3)
+    command = cell.train_command().split(" && ")[0]
+    args = build_parser().parse_args(shlex.split(command)[1:])
+    given = {field: getattr(args, field) for field, _, _ in FLAGS.values() if getattr(args, field) is not None}
+    printed = json.loads(json.dumps(TrainConfig.from_dict(given).__dict__))  # as stored: tuples become lists
+    shipped = load_policy("rarl-k2-conservative")[1]["train_config"]
+    differ = {f for f in printed if f in shipped and printed[f] != shipped[f]}
+    assert differ == {"k", "out_dir"}, differ
