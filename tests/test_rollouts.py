@@ -221,6 +221,28 @@ def test_mixed_clutter_draws_each_scene_size_pads_flat_slots_with_dummies_and_is
         raise AssertionError("no sparse scene in 20 draws")
 
 
+def test_mixed_selectors_draw_knn_or_radius_per_episode_reproducibly_for_set_networks_only():
+    """``selector='mixed'``: each episode's selector is drawn from the env's seeded generator; a dynamic-radius
+    episode leaves the slots of objects beyond the radius absent (zero), a dynamic-kNN one fills all k."""
+    cfg = TrainConfig(k=4, scene_objects=6, selector="mixed", network="set", max_episode_steps=30)
+    env, again = make_env(cfg.rollout_env_kwargs), make_env(cfg.rollout_env_kwargs)
+    drawn, filled = [], {"dynamic-knn": set(), "dynamic-radius": set()}
+    for episode in range(16):
+        seed = 3 if episode == 0 else None  # seeded once, as a rollout worker does
+        obs, info = env.reset(seed=seed)
+        obs_again, _ = again.reset(seed=seed)
+        np.testing.assert_array_equal(obs, obs_again)
+        assert env.selector_name == again.selector_name and len(info["names"]) == 6
+        drawn.append(env.selector_name)
+        slots = obs[ROBOT_DIM:].reshape(4, -1)
+        filled[env.selector_name].add(int(np.count_nonzero(np.abs(slots).sum(axis=1))))
+    assert set(drawn) == {"dynamic-knn", "dynamic-radius"}
+    assert filled["dynamic-knn"] == {4}  # six objects: the four nearest, always
+    assert min(filled["dynamic-radius"]) < 4  # some objects stand beyond 0.35 m at the start
+    with pytest.raises(ConfigError, match="selector 'mixed' hands the policy a varying number"):
+        TrainConfig(k=4, scene_objects=6, selector="mixed")
+
+
 def test_config_rejects_mixed_clutter_outside_one_to_the_largest_scene():
     from safemanip.rl.config import ConfigError
 

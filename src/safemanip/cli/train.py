@@ -52,8 +52,8 @@ FLAGS = {
                                                        "the selector picks the policy's k"),
     "--scene-objects-min": ("scene_objects_min", int_in(1, 8), "mixed clutter: each episode's N is drawn from this "
                                                                "to --scene-objects (or k); empty slots are padded"),
-    "--selector": ("selector", None, "object selector for selection-aware training (dynamic-radius needs "
-                                     "--network set)"),
+    "--selector": ("selector", None, "object selector for selection-aware training (dynamic-radius and mixed, "
+                                     "a per-episode draw of the two, need --network set)"),
     "--selection-radius": ("selection_radius", float_in(0, 10, lo_open=True), "dynamic-radius: radius around the "
                                                                               "held box [m] (default 0.35)"),
     "--backend": ("backend", None, "rollout workers as local processes or Ray actors (default local)"),
@@ -62,7 +62,7 @@ FLAGS = {
 }
 CHOICES = {"--algorithm": ["rarl", "vanilla"], "--constraints": ["conservative", "all"], "--embodiment": ["panda", "hand"],
            "--device": ["auto", "cpu", "cuda"], "--precision": ["auto", "bf16", "fp32"], "--network": ["mlp", "set"],
-           "--selector": ["dynamic-knn", "dynamic-radius"], "--backend": ["local", "ray"]}
+           "--selector": ["dynamic-knn", "dynamic-radius", "mixed"], "--backend": ["local", "ray"]}
 
 
 def _cmd_train(args) -> int:

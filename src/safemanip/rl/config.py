@@ -128,8 +128,9 @@ class TrainConfig:
     with N < k cannot fill are padded as at deployment: far-away dummy objects for the flat MLP, absent
     (masked) slots for the set network. None: every scene holds the same N."""
     selector: str = "dynamic-knn"
-    """Object selector for selection-aware training: 'dynamic-knn' (k nearest) or 'dynamic-radius' (every
-    object within ``selection_radius``, at most k; needs network='set')."""
+    """Object selector for selection-aware training: 'dynamic-knn' (k nearest), 'dynamic-radius' (every
+    object within ``selection_radius``, at most k; needs network='set') or 'mixed' (each episode draws one of
+    the two, so one set-network policy works with either at deployment; needs network='set')."""
     selection_radius: float = 0.35
     """dynamic-radius: horizontal distance from the held box's centre [m] within which objects are picked."""
     selection_interval: int = 4
@@ -231,7 +232,7 @@ class TrainConfig:
         """Checks of the issue-10 fields (device, precision, network, selection-aware training, backend)."""
         problems = []
         for name, allowed in (("device", ("auto", "cpu", "cuda")), ("precision", ("auto", "bf16", "fp32")),
-                              ("network", ("mlp", "set")), ("selector", ("dynamic-knn", "dynamic-radius")),
+                              ("network", ("mlp", "set")), ("selector", ("dynamic-knn", "dynamic-radius", "mixed")),
                               ("backend", ("local", "ray"))):
             value = getattr(self, name)
             if value not in allowed and not (name == "device" and str(value).startswith("cuda:")
@@ -254,8 +255,8 @@ class TrainConfig:
                                 f"got {self.scene_objects_min}")
             if self.env != DEFAULT_ENV:
                 problems.append(f"scene_objects_min (mixed clutter) works on the {DEFAULT_ENV!r} env, not {self.env!r}")
-        if self.selector == "dynamic-radius" and self.network != "set":
-            problems.append("selector 'dynamic-radius' hands the policy a varying number of objects: use network 'set'")
+        if self.selector in ("dynamic-radius", "mixed") and self.network != "set":
+            problems.append(f"selector {self.selector!r} hands the policy a varying number of objects: use network 'set'")
         if self.init_from is not None and (not self.init_from.strip() or len(self.init_from) > 4096):
             problems.append(f"init_from must be a run folder, got {self.init_from!r}")
         if self.address is not None:
@@ -268,9 +269,9 @@ class TrainConfig:
     @property
     def selection_aware(self) -> bool:
         """Training scenes hold more objects than the policy's slots, a varying number of them (mixed clutter),
-        or the slots vary (dynamic-radius)."""
+        or the slots vary (dynamic-radius, mixed)."""
         return self.env == DEFAULT_ENV and (self.scene_objects is not None or self.scene_objects_min is not None
-                                            or self.selector == "dynamic-radius")
+                                            or self.selector in ("dynamic-radius", "mixed"))
 
     @property
     def rollout_env_kwargs(self) -> dict:
