@@ -1,0 +1,28 @@
+"""The code in the docs runs: the extension guide's example is executed as written."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+DOCS = Path(__file__).parents[1] / "docs"
+
+
+def python_blocks(path: Path) -> list[str]:
+    return re.findall(r"```python\n(.*?)```", path.read_text(), flags=re.S)
+
+
+def test_the_extension_guide_example_runs_a_custom_selector_through_run_episode(capsys):
+    blocks = python_blocks(DOCS / "extending.md")
+    assert len(blocks) == 1
+    scope: dict = {}
+    exec(compile(blocks[0], "docs/extending.md", "exec"), scope)
+    records = scope["records"]
+    assert len(records) == 5
+    for r in records:
+        assert r["outcome"] in ("success", "failure", "timeout") and r["length"] >= 1
+        assert r["selections"].startswith("0:") and len(r["names"].split(";")) == 5
+    # the selector was consulted: two distinct ids at t = 0 of every episode
+    assert all(len(r["selections"].split(";")[0][2:].split(",")) == 2 for r in records)
+    printed = capsys.readouterr().out
+    assert printed.count("(") == 5 and all(r["outcome"] in printed for r in records)
