@@ -55,6 +55,31 @@ def test_fixed_point_of_a_reached_safe_state_is_its_margin():
 
 
 def test_vanilla_target():
-    r, v = t(-0.1, -0.2), t(1.0, 1.0)
-    y = discounted_return_target(r, v, torch.tensor([False, True]), 0.9)
-    assert torch.allclose(y, t(-0.1 + 0.9, -0.2))
+    r, v, r_next = t(-0.1, -0.2), t(1.0, 1.0), t(-0.5, -0.5)
+    y = discounted_return_target(r, v, torch.tensor([False, True]), r_next, 0.9)
+    # continuing: r + gamma Q'; terminated: s' absorbing, r(s') for ever = -0.5 / (1 - 0.9) = -5
+    assert torch.allclose(y, t(-0.1 + 0.9, -0.2 + 0.9 * -5.0))
+
+
+def test_vanilla_target_makes_failing_early_worse_than_reaching_the_goal():
+    """The loophole the absorbing rule closes: with r = min(l, g) < 0 until success, a failure that simply
+    ended the episode (V' = 0) beat every slower success. Exact values of two deterministic paths, by
+    backing the targets up from their ends."""
+    gamma = 0.98
+
+    def path_value(rewards, terminal_reward):
+        value = None
+        for i in reversed(range(len(rewards))):
+            nxt = torch.tensor([0.0]) if value is None else value
+            last = value is None
+            value = discounted_return_target(torch.tensor([rewards[i]]), nxt, torch.tensor([last]),
+                                             torch.tensor([terminal_reward]), gamma)
+        return float(value)
+
+    fail_now = path_value([-0.5], terminal_reward=-0.5)  # the top box knocked over far from the goal
+    succeed = path_value([-0.5 + 0.025 * i for i in range(20)], terminal_reward=0.03)  # 20 steps to a placed box
+    assert succeed > fail_now
+    # the textbook target (V' = 0 at the end) prefers the failure: what the old baseline learnt
+    textbook_fail = -0.5
+    textbook_succeed = sum(gamma ** i * (-0.5 + 0.025 * i) for i in range(20))
+    assert textbook_fail > textbook_succeed

@@ -84,7 +84,8 @@ def test_target_bootstraps_from_the_minimum_of_the_twin_heads():
         q0, q1 = learner.critic_targ(b.next_obs, next_a)
     torch.testing.assert_close(q1, q0 + 5.0)
     y = learner.target(b, gamma=0.9)
-    expected = torch.minimum(b.l, b.g) + 0.9 * (~b.terminated).float() * q0  # the smaller head
+    absorbing = torch.minimum(b.next_l, b.next_g) / (1 - 0.9)  # a terminated s' pays its reward for ever
+    expected = torch.minimum(b.l, b.g) + 0.9 * torch.where(b.terminated, absorbing, q0)  # the smaller head
     torch.testing.assert_close(y, expected)
 
 

@@ -30,6 +30,19 @@ def reach_avoid_target(l: torch.Tensor, g: torch.Tensor, next_value: torch.Tenso
 
 
 def discounted_return_target(reward: torch.Tensor, next_value: torch.Tensor, terminated: torch.Tensor,
-                             gamma: float) -> torch.Tensor:
-    """The usual DDPG target r + gamma * (1 - d) * Q_targ(s', mu_targ(s')); truncation still bootstraps."""
-    return reward + gamma * (~terminated).to(reward.dtype) * next_value
+                             next_reward: torch.Tensor, gamma: float) -> torch.Tensor:
+    """The usual DDPG target r + gamma * V', with terminated states absorbing; truncation still bootstraps.
+
+    V' is Q_targ(s', mu_targ(s')), except after a terminated transition (success or failure), where s' is
+    absorbing: it keeps paying its own reward r(s') for ever, V' = r(s') / (1 - gamma) -- the same terminal
+    rule as the reach-avoid backup's V' = min(l(s'), g(s')), in this objective's scale.
+
+    Why not the textbook r + gamma * (1 - d) * Q' (V' = 0 at a terminal state): with r = min(l, g) < 0 on
+    every step before success, a failure that ends the episode stops the penalties, so the best return
+    comes from failing at once (the first version's Vanilla-RL learnt exactly that: 0 % success, the top box
+    knocked over at step 2). With absorbing terminal states a failure far from the goal is worth
+    min(l, g) / (1 - gamma) (about -25 at gamma = 0.98), a success l / (1 - gamma) > 0, and the comparison
+    with RARL is between objectives, not between one objective and a loophole.
+    """
+    terminal_value = next_reward / (1.0 - gamma)
+    return reward + gamma * torch.where(terminated, terminal_value, next_value)

@@ -18,7 +18,8 @@ class ConfigError(ValueError):
 @dataclass
 class TrainConfig:
     algorithm: str = "rarl"
-    """'rarl' (discounted reach-avoid backup) or 'vanilla' (DDPG on the return of r = min(l, g))."""
+    """'rarl' (discounted reach-avoid backup) or 'vanilla' (DDPG on the discounted return of r = min(l, g),
+    terminated states absorbing: ``rl/backup.py::discounted_return_target``)."""
     k: int = 2
     """Clutter objects in every training scene: the k object slots the policy sees (a scene at
     deployment has N >= k objects; N is ``EvalRequest.n_objects``)."""

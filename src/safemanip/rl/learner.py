@@ -86,7 +86,8 @@ class Learner:
             if cfg.algorithm == "rarl":
                 return reach_avoid_target(batch.l, batch.g, next_q, batch.terminated, batch.next_l, batch.next_g, gamma)
             reward = torch.minimum(batch.l, batch.g)  # paper: r = min(l(s), g(s))
-            return discounted_return_target(reward, next_q, batch.terminated, gamma)
+            return discounted_return_target(reward, next_q, batch.terminated, torch.minimum(batch.next_l, batch.next_g),
+                                            gamma)
 
     def update(self, batch: Batch, gamma: float) -> dict[str, float]:
         cfg = self.cfg
