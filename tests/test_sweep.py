@@ -87,7 +87,7 @@ def _fake_summary(success, n=100, **fails):
             "categories": {c: rate(v) for c, v in counts.items()}, "mean_length": 100.0}
 
 
-@pytest.mark.parametrize("name", ["fig5", "fig6", "table1"])
+@pytest.mark.parametrize("name", ["fig4", "fig5", "fig6", "table1"])
 def test_render_only_uses_stored_results(tmp_path, name):
     cfg = load_config(name)
     results = []
@@ -103,9 +103,9 @@ def test_render_only_uses_stored_results(tmp_path, name):
     status = run_sweep(name, out=str(root), render_only=True, log=lambda s: None)
     assert status["ran"] == [] and status["skipped"] == []
     table = Path(status["table"]).read_text()
-    assert "| k |" in table or "| semantics |" in table
-    assert table.count("\n| rarl-") == len(results)  # one row per cell in the long table
-    if cfg["figure"] in ("fig5", "fig6"):
+    assert "| k |" in table or "| semantics |" in table or "| algorithm |" in table
+    assert table.count("\n| rarl-") + table.count("\n| vanilla-") == len(results)  # one row per cell
+    if cfg["figure"] in ("fig4", "fig5", "fig6"):
         png = Path(status["figure"])
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
     else:

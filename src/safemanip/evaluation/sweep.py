@@ -4,7 +4,7 @@ rendered as the paper's figure and a markdown table from the stored results alon
 A sweep config is a JSON file (shipped ones live in ``evaluation/sweeps/``; a path to your own works
 too)::
 
-  {"name": "fig5", "title": "...", "figure": "fig5" | "fig6" | "table",
+  {"name": "fig5", "title": "...", "figure": "fig4" | "fig5" | "fig6" | "table",
    "episodes": 2000, "seed": 12, "judge": "conservative" | "ground-truth",
    "policies": ["policies/rarl-k2-conservative.safetensors", ...],   each entry may also be
                                                {"path": ..., "n_objects": [...], "semantics": [...]}
@@ -46,7 +46,7 @@ from safemanip.util.files import OutputLock, atomic_write_text, check_output_dir
 from safemanip.util.procs import Interrupted, stop_on_signals
 
 POLICY_NAME = re.compile(r"(?P<algorithm>[a-z0-9]+)-k(?P<k>\d+)-(?P<constraints>conservative|all)$")
-FIGURES = ("fig5", "fig6", "table")
+FIGURES = ("fig4", "fig5", "fig6", "table")
 DEFAULT_ROOT = Path("results/sweeps")
 SHIPPED_RECIPE = ("--embodiment panda --object-size --minutes 20 --gamma-start 0.9 --gamma 0.98 "
                   "--learning-rate-final 1e-4 --precision auto --seed 0")
@@ -469,6 +469,39 @@ def _plot_fig5(cfg: dict, results: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
+def _plot_fig4(cfg: dict, results: list[dict], path: Path) -> None:
+    """Paper Fig. 4: per algorithm, success (solid) and top-box violations (dotted) against N, with 95 % intervals."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    algorithms = sorted({r["cell"]["algorithm"] for r in results})
+    colours = {a: c for a, c in zip(algorithms, ("tab:blue", "tab:red", "tab:green", "tab:purple"))}
+    labels = {"rarl": "RARL", "vanilla": "Vanilla-RL"}
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for algorithm in algorithms:
+        pts = sorted(((r["cell"]["n_objects"], r["summary"]) for r in results if r["cell"]["algorithm"] == algorithm),
+                     key=lambda p: p[0])
+        xs = [n for n, _ in pts]
+        for key, style, what in (("success", "-", "success"), ("top_box", ":", "top-box violation")):
+            entries = [s[key] if key == "success" else s["categories"][key] for _, s in pts]
+            ys = [100 * e["rate"] for e in entries]
+            err = [[y - 100 * e["ci95"][0] for y, e in zip(ys, entries)],
+                   [100 * e["ci95"][1] - y for y, e in zip(ys, entries)]]
+            ax.errorbar(xs, ys, yerr=err, linestyle=style, marker="o", capsize=3, color=colours[algorithm],
+                        label=f"{labels.get(algorithm, algorithm)}: {what}")
+    ax.set_xlabel("objects in the scene N (policy k = N)")
+    ax.set_ylabel("episodes (%)")
+    ax.set_ylim(-2, 102)
+    ax.set_xticks(sorted({r["cell"]["n_objects"] for r in results}))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(cfg.get("title", cfg["name"]), fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 FIG6_STACK = (("success", ("success",), "tab:green"), ("top box / OOB", ("top_box", "out_of_workspace"), "tab:orange"),
               ("collision with unselected", ("collision_unselected",), "tab:red"),
               ("collision with selected", ("collision_selected",), "tab:purple"),
@@ -503,15 +536,15 @@ def _plot_fig6(cfg: dict, results: list[dict], path: Path) -> None:
 
 
 def render(cfg: dict, results: list[dict], root: Path) -> tuple[str | None, str]:
-    """Write NAME.md (always) and NAME.png (fig5/fig6, when there are results) from stored results only."""
+    """Write NAME.md (always) and NAME.png (fig4/fig5/fig6, when there are results) from stored results only."""
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     table = root / f"{cfg['name']}.md"
     atomic_write_text(table, markdown_table(cfg, results))
     figure = None
-    if results and cfg["figure"] in ("fig5", "fig6"):
+    if results and cfg["figure"] in ("fig4", "fig5", "fig6"):
         figure = root / f"{cfg['name']}.png"
-        (_plot_fig5 if cfg["figure"] == "fig5" else _plot_fig6)(cfg, results, figure)
+        {"fig4": _plot_fig4, "fig5": _plot_fig5, "fig6": _plot_fig6}[cfg["figure"]](cfg, results, figure)
     return (str(figure) if figure else None), str(table)
 
 
