@@ -153,3 +153,21 @@ def test_printed_train_command_reproduces_the_shipped_recipe():
     shipped = load_policy("rarl-k2-conservative")[1]["train_config"]
     differ = {f for f in printed if f in shipped and printed[f] != shipped[f]}
     assert differ == {"k", "out_dir"}, differ
+
+
+def test_a_missing_policy_in_another_folder_is_skipped_not_replaced_by_the_shipped_one(tmp_path, monkeypatch):
+    """Only a bare name or ``policies/FILE`` falls back to a shipped policy: ``runs/x/rarl-k2-conservative``
+    must not silently evaluate the shipped π_2 (it once did, and stored the cells as done)."""
+    from safemanip.rl.checkpoint import SHIPPED_POLICIES, resolve_policy
+
+    assert resolve_policy("rarl-k2-conservative") == SHIPPED_POLICIES / "rarl-k2-conservative.safetensors"
+    assert resolve_policy("policies/rarl-k2-conservative.safetensors").resolve() == \
+        (SHIPPED_POLICIES / "rarl-k2-conservative.safetensors").resolve()  # from any working folder
+    elsewhere = tmp_path / "runs" / "rarl-k2-conservative.safetensors"
+    assert resolve_policy(elsewhere) == elsewhere and not elsewhere.exists()
+    relative = "runs/selaware/rarl-k2-conservative.safetensors"
+    assert resolve_policy(relative) == Path(relative)
+    monkeypatch.chdir(tmp_path)  # the sweep resolves relative policy paths from the working folder
+    name = _config(tmp_path, [relative])
+    status = run_sweep(name, out=str(tmp_path / "out"), workers=1, progress=False, log=lambda s: None)
+    assert status["ran"] == [] and len(status["skipped"]) == 2

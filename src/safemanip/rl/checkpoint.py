@@ -134,9 +134,15 @@ SHIPPED_POLICIES = Path(__file__).resolve().parent.parent / "policies"
 
 
 def resolve_policy(name_or_path: str | Path) -> Path:
-    """A path as given if it exists, else a shipped policy by name (``rarl-k2-conservative``) or file name."""
+    """A path as given if it exists, else a shipped policy by name (``rarl-k2-conservative``) or by
+    ``policies/FILE`` (the form the shipped sweeps use, so they run from any working folder).
+
+    Only those two forms fall back: a path into any other folder that does not exist stays missing (and is
+    reported so), rather than silently standing for the shipped policy that happens to share its file name."""
     path = Path(name_or_path)
     if path.exists():
+        return path
+    if path.parent not in (Path("."), Path("policies")):
         return path
     for candidate in (SHIPPED_POLICIES / path.name, SHIPPED_POLICIES / f"{path.name}.safetensors"):
         if candidate.exists():
