@@ -37,18 +37,16 @@ def random_actor(k: int, hidden=(256, 256, 256), seed: int = 0) -> list[np.ndarr
 def make_spec(policy: str | None, n_objects: int, max_steps: int | None) -> tuple[EvalSpec, str]:
     candidates = [policy] if policy else sorted(glob.glob("policies/*.safetensors"))
     for path in candidates:
+        from safemanip.evaluation.harness import EvalRequest, prepare
         from safemanip.rl.checkpoint import load_policy
 
-        actor, meta = load_policy(path)
+        _, meta = load_policy(path)
         if meta["k"] > n_objects or "factory" in meta.get("env_kwargs", {}):
             continue
-        arrays = [a for w, b in actor.weights for a in (w.T.copy(), b)]
-        env = meta["env_kwargs"]
-        env_kwargs = {"n_objects": n_objects, "constraints": "ground_truth",
-                      "near_path_fraction": env.get("near_path_fraction", 0.5),
-                      "max_episode_steps": max_steps or env.get("max_episode_steps", 300)}
-        return (EvalSpec(arrays, meta["k"], meta["constraints"], env_kwargs, "dynamic-knn", "conservative",
-                         SelectorOptions()), f"policy {path} ({meta['algorithm']} k={meta['k']} {meta['constraints']})")
+        # the spec `safemanip eval` would run (embodiment, action curve, object sizes, layout from the policy)
+        prep = prepare(EvalRequest(policy=path, n_objects=n_objects, selector="dynamic-knn", judge="ground-truth",
+                                   episodes=1, max_episode_steps=max_steps))
+        return prep.spec, f"policy {path} ({meta['algorithm']} k={meta['k']} {meta['constraints']})"
     env_kwargs = {"n_objects": n_objects, "constraints": "ground_truth", "near_path_fraction": 0.5,
                   "max_episode_steps": max_steps or 300}
     return (EvalSpec(random_actor(2), 2, "conservative", env_kwargs, "dynamic-knn", "conservative", SelectorOptions()),
