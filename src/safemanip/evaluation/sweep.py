@@ -38,6 +38,7 @@ import contextlib
 import json
 import re
 import sys
+import textwrap
 from dataclasses import asdict, dataclass
 from importlib import resources
 from pathlib import Path
@@ -497,7 +498,7 @@ def _plot_fig4(cfg: dict, results: list[dict], path: Path) -> None:
     ax.set_xticks(sorted({r["cell"]["n_objects"] for r in results}))
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    ax.set_title(cfg.get("title", cfg["name"]), fontsize=9)
+    ax.set_title(textwrap.fill(cfg.get("title", cfg["name"]), 70), fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
