@@ -8,10 +8,10 @@ minute on the dead GCS before they exit. ``start_reaper()`` (Linux; a no-op else
 
 which, while PID lives, notes PID's descendants (pid and start time) every ``POLL_S`` seconds, and when PID is
 gone sends SIGKILL to every one of them still running under the same start time (so a reused pid is never hit).
-A last sweep when PID is gone adds what the noted processes started since the last poll (a Ray worker spawned
-in the last quarter second before a kill would otherwise escape: the likely cause of a rare CI failure in which
-two Ray processes outlived a kill -9 of an eval. Not proven: that test failed once in CI and once here, then
-passed the seven runs here since this sweep went in).
+When PID is gone it first stops (SIGSTOP) every noted process and whatever they started since the last poll,
+then kills them: a Ray worker spawned in the last quarter second before the kill, or one a raylet respawns while
+the reaper is killing its siblings, would otherwise escape (two Ray processes outliving a kill -9 of an eval was
+a rare CI failure, seen again on 2026-12-03 with the earlier last-sweep-then-kill order).
 """
 
 from __future__ import annotations
@@ -56,7 +56,28 @@ def descendants(*roots: int) -> dict[int, int]:
     return out
 
 
-def watch(root: int) -> None:
+TAG_VARIABLE = "SAFEMANIP_REAPER_TAG"
+"""Set in the watched process's environment, so every process it starts, and they start, inherits it."""
+
+
+def tagged(tag: str, not_before: int) -> dict[int, int]:
+    """pid -> start time of every live process started at or after ``not_before`` whose environment holds the tag:
+    the watched process's lineage, found even after an orphan was re-parented away from it."""
+    needle = f"{TAG_VARIABLE}={tag}".encode()
+    out = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                environ = Path(f"/proc/{entry}/environ").read_bytes()
+            except OSError:
+                continue
+            info = _stat(int(entry))
+            if info is not None and info[1] >= not_before and needle in environ.split(b"\0"):
+                out[int(entry)] = info[1]
+    return out
+
+
+def watch(root: int, tag: str | None = None) -> None:
     me = os.getpid()
     root_started = _stat(root)
     seen: dict[int, int] = {}
@@ -64,26 +85,49 @@ def watch(root: int) -> None:
         seen.update(descendants(root))
         seen = {p: t for p, t in seen.items() if p != me and (_stat(p) or (0, -1))[1] == t}
         time.sleep(POLL_S)
-    # a last sweep: what the noted processes (still running) started since the last poll
-    seen.update(descendants(*seen))
-    seen.pop(me, None)
-    for pid, started in seen.items():
-        info = _stat(pid)
-        if info is not None and info[1] == started:
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except OSError:
-                pass
+    if tag and root_started is not None:
+        # a process started in the last poll interval, whose parent then died (re-parented away from the
+        # tree before it was noted): Ray's agents, started by the raylet, escaped so once in about six kills
+        seen.update(tagged(tag, root_started[1]))
+    # Freeze first, kill second: SIGSTOP every noted process, oldest (parents) first, and add what they started
+    # since the last poll until nothing new turns up; a stopped process can neither fork nor respawn a worker
+    # it sees die (a raylet does), so the SIGKILLs that follow leave nothing behind.
+    stopped: dict[int, int] = {}
+    while True:
+        seen.update(descendants(*seen))
+        if tag and root_started is not None:
+            seen.update(tagged(tag, root_started[1]))
+        seen.pop(me, None)
+        fresh = sorted(((t, p) for p, t in seen.items() if p not in stopped))
+        if not fresh:
+            break
+        for started, pid in fresh:
+            stopped[pid] = started
+            _signal_if_same(pid, started, signal.SIGSTOP)
+    for pid, started in stopped.items():
+        _signal_if_same(pid, started, signal.SIGKILL)
+
+
+def _signal_if_same(pid: int, started: int, signum: int) -> None:
+    """Send ``signum`` to ``pid`` only if it is still the process that started at ``started`` (pids get reused)."""
+    info = _stat(pid)
+    if info is not None and info[1] == started:
+        try:
+            os.kill(pid, signum)
+        except OSError:
+            pass
 
 
 def start_reaper() -> subprocess.Popen | None:
     """Start the watchdog for this process (Linux only; returns None elsewhere)."""
     if not sys.platform.startswith("linux"):
         return None
-    return subprocess.Popen([sys.executable, "-m", "safemanip.util.reaper", str(os.getpid())],
+    tag = os.environ.get(TAG_VARIABLE) or f"{os.getpid()}-{time.time_ns()}"
+    os.environ[TAG_VARIABLE] = tag  # before anything it should reap is started
+    return subprocess.Popen([sys.executable, "-m", "safemanip.util.reaper", str(os.getpid()), tag],
                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
 if __name__ == "__main__":
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C to the group is for the watched process
-    watch(int(sys.argv[1]))
+    watch(int(sys.argv[1]), sys.argv[2] if len(sys.argv) > 2 else None)
