@@ -433,6 +433,13 @@ def markdown_table(cfg: dict, results: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _error_bars(entries: list[dict]) -> list[list[float]]:
+    """matplotlib's (below, above) error bars in % from summary entries' rate and 95 % interval; clamped at 0, as
+    an interval's end may round to the other side of a rate of 0 or 1."""
+    return [[max(0.0, 100 * (e["rate"] - e["ci95"][0])) for e in entries],
+            [max(0.0, 100 * (e["ci95"][1] - e["rate"])) for e in entries]]
+
+
 def _plot_fig5(cfg: dict, results: list[dict], path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -452,8 +459,7 @@ def _plot_fig5(cfg: dict, results: list[dict], path: Path) -> None:
                 continue
             xs = [n for n, _ in pts]
             ys = [100 * s["success"]["rate"] for _, s in pts]
-            err = [[max(0.0, y - 100 * s["success"]["ci95"][0]) for y, (_, s) in zip(ys, pts)],
-                   [max(0.0, 100 * s["success"]["ci95"][1] - y) for y, (_, s) in zip(ys, pts)]]
+            err = _error_bars([s["success"] for _, s in pts])
             ax.errorbar(xs, ys, yerr=err, marker="o", capsize=3, color=colours[k], label=f"k = {k}")
         fx = [(r["cell"]["n_objects"], 100 * r["summary"]["success"]["rate"]) for r in full]
         if fx:
@@ -487,10 +493,7 @@ def _plot_fig4(cfg: dict, results: list[dict], path: Path) -> None:
         for key, style, what in (("success", "-", "success"), ("top_box", ":", "top-box violation")):
             entries = [s[key] if key == "success" else s["categories"][key] for _, s in pts]
             ys = [100 * e["rate"] for e in entries]
-            # max(0, ...): an interval's end may round to the other side of a rate of 0 or 1
-            err = [[max(0.0, y - 100 * e["ci95"][0]) for y, e in zip(ys, entries)],
-                   [max(0.0, 100 * e["ci95"][1] - y) for y, e in zip(ys, entries)]]
-            ax.errorbar(xs, ys, yerr=err, linestyle=style, marker="o", capsize=3, color=colours[algorithm],
+            ax.errorbar(xs, ys, yerr=_error_bars(entries), linestyle=style, marker="o", capsize=3, color=colours[algorithm],
                         label=f"{labels.get(algorithm, algorithm)}: {what}")
     ax.set_xlabel("objects in the scene N (policy k = N)")
     ax.set_ylabel("episodes (%)")

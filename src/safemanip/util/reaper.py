@@ -85,10 +85,6 @@ def watch(root: int, tag: str | None = None) -> None:
         seen.update(descendants(root))
         seen = {p: t for p, t in seen.items() if p != me and (_stat(p) or (0, -1))[1] == t}
         time.sleep(POLL_S)
-    if tag and root_started is not None:
-        # a process started in the last poll interval, whose parent then died (re-parented away from the
-        # tree before it was noted): Ray's agents, started by the raylet, escaped so once in about six kills
-        seen.update(tagged(tag, root_started[1]))
     # Freeze first, kill second: SIGSTOP every noted process, oldest (parents) first, and add what they started
     # since the last poll until nothing new turns up; a stopped process can neither fork nor respawn a worker
     # it sees die (a raylet does), so the SIGKILLs that follow leave nothing behind.
@@ -96,6 +92,8 @@ def watch(root: int, tag: str | None = None) -> None:
     while True:
         seen.update(descendants(*seen))
         if tag and root_started is not None:
+            # also what was started in the last poll interval and re-parented away from the tree before it was
+            # noted: Ray's agents, started by the raylet, escaped so once in about six kills
             seen.update(tagged(tag, root_started[1]))
         seen.pop(me, None)
         fresh = sorted(((t, p) for p, t in seen.items() if p not in stopped))
