@@ -6,6 +6,7 @@ import argparse
 import json
 
 from safemanip.cli.common import CliError, add_compute_backend, add_vlm_options, int_in
+from safemanip.scene.placement import LAYOUTS
 
 EVAL_EXAMPLES = """examples:
   safemanip eval --policy rarl-k2-conservative --episodes 500 --seed 7 --judge conservative
@@ -41,7 +42,7 @@ def _cmd_eval(args) -> int:
                       vlm_base_url=args.vlm_base_url, vlm_cache=args.vlm_cache, vlm_cache_only=args.vlm_cache_only,
                       vlm_timeout=args.vlm_timeout, vlm_episode_budget=args.vlm_episode_budget,
                       vlm_run_budget=args.vlm_run_budget, vlm_max_failures=args.vlm_max_failures,
-                      max_episode_steps=args.max_episode_steps, embodiment=args.embodiment,
+                      max_episode_steps=args.max_episode_steps, embodiment=args.embodiment, layout=args.layout,
                       chunk_size=args.chunk_size, progress=not args.no_progress)
     report = evaluate(req)
     print(report["text"])
@@ -107,6 +108,8 @@ def register(subparsers) -> None:
     ev.add_argument("--pad", action="store_true",
                     help="allow N < k: fill empty policy slots with far-away dummy objects")
     ev.add_argument("--max-episode-steps", type=int_in(1, 100_000), help="override the policy's episode length")
+    ev.add_argument("--layout", choices=list(LAYOUTS),
+                    help="scene layout: route or narrow (default: the one the policy was trained on)")
     ev.add_argument("--embodiment", choices=["panda", "hand"],
                     help="robot to evaluate on (default: the policy's own; another one is refused)")
     ev.add_argument("--chunk-size", type=int_in(1, 100_000), help="episodes per worker task (default: about 8 tasks per worker)")

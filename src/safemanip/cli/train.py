@@ -11,6 +11,7 @@ from dataclasses import fields
 from pathlib import Path
 
 from safemanip.cli.common import SEED, CliError, float_in, int_in
+from safemanip.scene.placement import LAYOUTS
 
 SWITCH = "switch"  # a flag without a value that sets its field to true
 # flag -> (TrainConfig field, argparse type, help); every one is checked for range here and again by TrainConfig
@@ -22,6 +23,8 @@ FLAGS = {
     "--action-curve": ("action_curve", float_in(1, 4), "commanded speed = 1.7 m/s x |a|^curve (1: linear; default 2)"),
     "--object-size": ("object_size", SWITCH, "each object slot also carries its footprint radius (not the paper's "
                                              "layout)"),
+    "--layout": ("layout", None, "scene layout: route (default) or narrow (every object beside the route, on both "
+                                 "sides, 1 cm to spare)"),
     "--total-env-steps": ("total_env_steps", int_in(1, 10**12), "budget in environment steps"),
     "--minutes": ("minutes", float_in(0, 525_600), "wall-clock budget in minutes (0: no time limit)"),
     "--seed": ("seed", SEED, "seed of everything random in the run"),
@@ -62,7 +65,8 @@ FLAGS = {
 }
 CHOICES = {"--algorithm": ["rarl", "vanilla"], "--constraints": ["conservative", "all"], "--embodiment": ["panda", "hand"],
            "--device": ["auto", "cpu", "cuda"], "--precision": ["auto", "bf16", "fp32"], "--network": ["mlp", "set"],
-           "--selector": ["dynamic-knn", "dynamic-radius", "mixed"], "--backend": ["local", "ray"]}
+           "--selector": ["dynamic-knn", "dynamic-radius", "mixed"], "--backend": ["local", "ray"],
+           "--layout": list(LAYOUTS)}
 
 
 def _cmd_train(args) -> int:

@@ -29,7 +29,7 @@ from safemanip.scene.builder import CONTROL_DT, SUBSTEPS, SceneIndex, build_mode
 from safemanip.scene.catalog import CONSTRAINT_TYPES, load_catalog, names_of_class
 from safemanip.scene.config import GEOMETRY, SceneConfig
 from safemanip.scene.embodiment import EMBODIMENTS, make_embodiment
-from safemanip.scene.placement import sample_placement, sample_route
+from safemanip.scene.placement import LAYOUTS, sample_placement, sample_route
 
 CONSTRAINT_MODES = ("ground_truth", "conservative", "random")
 EVENTS = ("running", "success", "failure:dyn", "failure:hard", "failure:soft", "failure:oob", "timeout", "unstable")
@@ -42,17 +42,18 @@ class SlideOutEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": int(round(1 / CONTROL_DT))}
 
     def __init__(self, n_objects: int = 4, names: Sequence[str] | None = None, classes: Sequence[str] | str | None = None,
-                 constraints: str | Sequence[str] = "ground_truth", near_path_fraction: float = 0.5,
+                 constraints: str | Sequence[str] = "ground_truth", near_path_fraction: float | None = None,
                  render_mode: str | None = None, max_episode_steps: int = 300,
                  thresholds: M.Thresholds = M.DEFAULT_THRESHOLDS, sleep: bool = True, slot_order: str = "index",
                  render_size: tuple[int, int] = (480, 640), embodiment: str = "panda", visual: bool | None = None,
-                 action_curve: float = 1.0, object_size: bool = False, clear_route: bool = True):
+                 action_curve: float = 1.0, object_size: bool = False, clear_route: bool = True,
+                 layout: str = "route"):
         if isinstance(classes, str):
             from safemanip.scene.config import parse_semantics
             classes = parse_semantics(classes)
         self.config = SceneConfig(n_objects=n_objects, names=tuple(names) if names else None,
                                   classes=tuple(classes) if classes else None, near_path_fraction=near_path_fraction,
-                                  clear_route=clear_route)
+                                  clear_route=clear_route, layout=layout)
         if isinstance(constraints, str):
             if constraints not in CONSTRAINT_MODES:
                 raise ValueError(f"constraints must be one of {CONSTRAINT_MODES} or a list of {CONSTRAINT_TYPES}, "
@@ -178,8 +179,8 @@ class SlideOutEnv(gym.Env):
         self.names = names
         self.model, self.data, self.index, self.binding, self.gather = self._sim(names)
         self.constraints = self._choose_constraints(options.get("constraints", self.constraint_mode), rng)
-        route = sample_route(rng, self.geometry) if self.config.clear_route else None
-        placement = sample_placement(self._footprint_radii(names), rng, self.config.near_path_fraction, self.geometry,
+        route = sample_route(rng, self.geometry, layout=LAYOUTS[self.config.layout]) if self.config.clear_route else None
+        placement = sample_placement(self._footprint_radii(names), rng, self.config.near_fraction, self.geometry,
                                      route=route)
         self.placement = placement  # this episode's initial layout (``near_path``: which objects stand in the corridor)
         m, d, idx = self.model, self.data, self.index

@@ -77,6 +77,8 @@ class EvalRequest:
     vlm_run_budget: float | None = None
     vlm_max_failures: int | None = None
     max_episode_steps: int | None = None
+    layout: str | None = None
+    """Scene layout, 'route' or 'narrow' (``scene.placement.LAYOUTS``; default: the one the policy was trained on)."""
     embodiment: str | None = None
     """Robot to evaluate on (default: the one the policy was trained on; another one is refused)."""
     chunk_size: int | None = None
@@ -190,6 +192,10 @@ def prepare(req: EvalRequest) -> Prepared:
             import ray  # noqa: F401
         except ImportError:
             problems.append("--backend ray needs Ray: pip install 'ray[default]' (or use --backend local)")
+    from safemanip.scene.placement import LAYOUTS
+
+    if req.layout is not None and req.layout not in LAYOUTS:
+        problems.append(f"unknown --layout {req.layout!r}; choose one of {', '.join(LAYOUTS)}")
     if req.selector is not None and req.selector not in OBJECT_SELECTORS:
         problems.append(f"unknown --selector {req.selector!r}; choose one of {', '.join(sorted(OBJECT_SELECTORS))}")
     if req.constraints is not None and req.constraints not in CONSTRAINT_SELECTORS:
@@ -253,9 +259,12 @@ def prepare(req: EvalRequest) -> Prepared:
     from safemanip.rl.checkpoint import policy_action_curve, policy_object_size
 
     env_train = meta["env_kwargs"]
-    env_kwargs = {"n_objects": n, "classes": classes, "constraints": JUDGES[req.judge],
-                  "near_path_fraction": env_train.get("near_path_fraction", 0.5),
-                  "clear_route": env_train.get("clear_route", True),
+    if req.layout is None:  # the policy's own scenes
+        layout = {"near_path_fraction": env_train.get("near_path_fraction", 0.5),
+                  "clear_route": env_train.get("clear_route", True), "layout": env_train.get("layout", "route")}
+    else:  # another layout, with its own share of objects beside the route
+        layout = {"near_path_fraction": None, "clear_route": True, "layout": req.layout}
+    env_kwargs = {"n_objects": n, "classes": classes, "constraints": JUDGES[req.judge], **layout,
                   "max_episode_steps": req.max_episode_steps or env_train.get("max_episode_steps", 300),
                   "embodiment": env_train["embodiment"], "action_curve": policy_action_curve(meta)}
     options = SelectorOptions(interval=req.interval, vlm_backend=req.vlm_backend or "semantic", vlm_model=req.vlm_model,

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from safemanip.rl.envs import DEFAULT_ENV, ENVS, LEGACY_FACTORIES, SELECTED_ENV, check_env
 from safemanip.scene.config import MAX_OBJECTS
+from safemanip.scene.placement import LAYOUTS
 
 
 class ConfigError(ValueError):
@@ -26,12 +27,15 @@ class TrainConfig:
     constraints: str = "conservative"
     """'conservative': every object no_contact (paper F^conser); 'all': each object's constraint drawn
     uniformly from {no_contact, soft_contact, any_contact} every episode."""
-    near_path_fraction: float = 0.5
-    """Share of the clutter placed near the path to the goal."""
+    near_path_fraction: float | None = None
+    """Share of the clutter placed near the path to the goal (None: the layout's own, 0.5 for 'route')."""
     clear_route: bool = True
     """Scenes keep a route to the goal clear for the held box and hand, the near-path objects beside it
     (``scene.placement.sample_route``). False: the straight-corridor layout of results before 2026-12-02, in
     which the Panda cannot solve most scenes with N >= 3. Recorded in the policy's metadata."""
+    layout: str = "route"
+    """How tightly the clutter hems in the kept-clear route (``scene.placement.LAYOUTS``): 'route' or 'narrow'
+    (every object beside the route on both sides, 1 cm to spare). Recorded in the policy's metadata."""
     embodiment: str = "panda"
     """Robot: 'panda' (the 7-DoF Franka Panda, the paper's) or 'hand' (the idealised floating-hand ablation).
     Recorded in the policy's metadata; a policy is refused in another embodiment."""
@@ -161,10 +165,13 @@ class TrainConfig:
             problems.append(f"constraints must be 'conservative' or 'all', got {self.constraints!r}")
         if not 0 <= self.k <= MAX_OBJECTS:
             problems.append(f"k must be 0..{MAX_OBJECTS}, got {self.k}")
-        if not 0 <= self.near_path_fraction <= 1:
+        if self.near_path_fraction is not None and not 0 <= self.near_path_fraction <= 1:
             problems.append(f"near_path_fraction must be in [0, 1], got {self.near_path_fraction}")
-        if not isinstance(self.clear_route, bool):
-            problems.append(f"clear_route must be true or false, got {self.clear_route!r}")
+        if self.layout not in LAYOUTS:
+            problems.append(f"layout must be one of {', '.join(map(repr, LAYOUTS))}, got {self.layout!r}")
+        elif not self.clear_route and self.layout != "route":
+            problems.append(f"layout {self.layout!r} keeps a route clear: drop clear_route false (the straight "
+                            f"layout) or the layout")
         if not 0 < self.gamma < 1:
             problems.append(f"gamma must be in (0, 1), got {self.gamma}")
         if self.gamma_start is not None and not 0 < self.gamma_start <= self.gamma:
@@ -223,7 +230,7 @@ class TrainConfig:
         problems += check_env(self.env, self.extra_env_kwargs)
         if self.env == DEFAULT_ENV and self.extra_env_kwargs:
             problems.append("extra_env_kwargs apply to non-default envs only (the slide-out env takes its settings "
-                            "from k, constraints, near_path_fraction, clear_route, max_episode_steps, slot_order, embodiment and "
+                            "from k, constraints, near_path_fraction, clear_route, layout, max_episode_steps, slot_order, embodiment and "
                             "action_curve, object_size)")
         problems += self._learner_problems()
         if problems:
@@ -292,7 +299,7 @@ class TrainConfig:
         if self.env != DEFAULT_ENV:
             return {"env": self.env, **self.extra_env_kwargs}
         return {"n_objects": self.k, "constraints": "random" if self.constraints == "all" else "conservative",
-                "near_path_fraction": self.near_path_fraction, "clear_route": self.clear_route,
+                "near_path_fraction": self.near_path_fraction, "clear_route": self.clear_route, "layout": self.layout,
                 "max_episode_steps": self.max_episode_steps,
                 "slot_order": self.slot_order, "embodiment": self.embodiment, "action_curve": self.action_curve,
                 "object_size": self.object_size}

@@ -80,13 +80,17 @@ class SceneConfig:
     classes: tuple[str, ...] | None = None
     """Semantic class per object (fragile/soft/durable); names are drawn from the catalog per episode.
     None: any class."""
-    near_path_fraction: float = 0.5
-    """Share of the clutter placed near the path from the pulled-out box to the goal."""
+    near_path_fraction: float | None = None
+    """Share of the clutter placed near the path from the pulled-out box to the goal (None: the layout's own,
+    ``placement.LAYOUTS``; 0.5 without a route)."""
     clear_route: bool = True
     """Keep a route from the lane to the goal clear for the held box and the hand (``placement.sample_route``),
     with the near-path objects beside it, so every scene can be solved. False: the near-path objects stand
     anywhere around the straight path (the layout of results before 2026-12-02), which walls off most scenes
     with N >= 3 for a Panda."""
+    layout: str = "route"
+    """How tightly the clutter hems in the route (``placement.LAYOUTS``): 'route' (the default) or 'narrow' (a
+    channel: every object beside the route, on both sides, 1 cm to spare)."""
     extra: dict = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self):
@@ -94,8 +98,15 @@ class SceneConfig:
             object.__setattr__(self, "n_objects", int(self.n_objects))
         if not isinstance(self.n_objects, int) or not 0 <= self.n_objects <= MAX_OBJECTS:
             raise SceneConfigError(f"n_objects must be an integer from 0 to {MAX_OBJECTS}, got {self.n_objects!r}")
-        if not 0.0 <= self.near_path_fraction <= 1.0:
+        if self.near_path_fraction is not None and not 0.0 <= self.near_path_fraction <= 1.0:
             raise SceneConfigError(f"near_path_fraction must be in [0, 1], got {self.near_path_fraction}")
+        from safemanip.scene.placement import LAYOUTS  # placement imports this module's geometry
+
+        if self.layout not in LAYOUTS:
+            raise SceneConfigError(f"layout must be one of {', '.join(LAYOUTS)}, got {self.layout!r}")
+        if not self.clear_route and self.layout != "route":
+            raise SceneConfigError(f"layout {self.layout!r} keeps a route clear: drop clear_route=False (the "
+                                   f"straight-corridor layout) or the layout")
         catalog = load_catalog()
         if self.names is not None:
             object.__setattr__(self, "names", tuple(self.names))
@@ -120,3 +131,12 @@ class SceneConfig:
                 want = self.classes.count(c)
                 if want > have:
                     raise SceneConfigError(f"asked for {want} {c} objects but the catalog has only {have}")
+
+    @property
+    def near_fraction(self) -> float:
+        """``near_path_fraction``, or the layout's default share when it is None."""
+        if self.near_path_fraction is not None:
+            return self.near_path_fraction
+        from safemanip.scene.placement import LAYOUTS
+
+        return LAYOUTS[self.layout].near_fraction if self.clear_route else 0.5

@@ -31,8 +31,8 @@ bend enough that objects inside the bend stand on the straight path."""
 ROUTE_HAND_OVERHANG = 0.03
 """How far the Panda's hand and fingers stick out past the held box's pulled edge (+x) [m]."""
 ROUTE_CLEARANCE = 0.02
-"""Room kept around the held box and hand along the route [m]: the collision threshold d4 (1 cm) and 1 cm
-more, so a controller that follows the route is not judged to collide."""
+"""Room kept around the held box and hand along the route [m] in the 'route' layout: the collision threshold d4
+(1 cm) and 1 cm more, so a controller that follows the route is not judged to collide."""
 NEAR_ROUTE_GAP = 0.06
 """A near-path object stands at most this far outside the route's kept-clear band [m] (0.30 if crowded)."""
 NEAR_ROUTE_SPAN = (0.25, 0.75)
@@ -43,6 +43,32 @@ INNER_SHARE = 0.9
 controller that heads straight for the goal hit something, so the bend has to be followed."""
 
 
+@dataclass(frozen=True)
+class RouteLayout:
+    """How tightly the clutter hems in the kept-clear route. Every layout leaves the route open; they differ in
+    how much room it has and how close the objects stand."""
+
+    clearance: float
+    """Room around the held box and hand along the route [m] (``Route.half_extents``)."""
+    near_gap: float
+    """A near-path object stands at most this far outside the route's band [m] (0.30 if crowded)."""
+    inner_share: float
+    """Share of near-path objects inside the bend (the rest stand on its outside)."""
+    near_fraction: float
+    """Share of the clutter beside the route when the scene config does not say (``near_path_fraction``)."""
+
+
+LAYOUTS = {
+    # half the clutter just beside the route, nearly all of it inside the bend: cutting the corner collides
+    "route": RouteLayout(clearance=ROUTE_CLEARANCE, near_gap=NEAR_ROUTE_GAP, inner_share=INNER_SHARE,
+                         near_fraction=0.5),
+    # a channel: all the clutter 0-2 cm outside a band with only d4 (1 cm) to spare, on both sides of it, so
+    # the held box must follow the bend to within a few centimetres all the way
+    "narrow": RouteLayout(clearance=0.01, near_gap=0.02, inner_share=0.5, near_fraction=1.0),
+}
+"""The route layouts by name (``SceneConfig.layout``; ``clear_route=False`` is the straight-corridor one)."""
+
+
 class PlacementError(SceneConfigError):
     pass
 
@@ -50,12 +76,13 @@ class PlacementError(SceneConfigError):
 @dataclass(frozen=True)
 class Route:
     """A way for the held box's centre from the lane to the goal: two straight legs through a waypoint. A band
-    around it (``half_extents`` around every point, the box and hand plus ``ROUTE_CLEARANCE``) stays clear."""
+    around it (``half_extents`` around every point, the box and hand plus the layout's clearance) stays clear."""
 
     points: np.ndarray  # (M, 2) the box centre every ~2 cm along the way
     half_extents: tuple[float, float]  # of the axis-aligned rectangle kept clear around each point
     waypoint: tuple[float, float]
     bend: float  # the waypoint's offset from the straight path [m], + away from the robot
+    layout: RouteLayout = LAYOUTS["route"]  # how close the near-path objects stand beside it
 
 
 @dataclass(frozen=True)
@@ -66,8 +93,10 @@ class Placement:
     route: Route | None = None
 
 
-def sample_route(rng: np.random.Generator, geometry: TaskGeometry = GEOMETRY, spacing: float = 0.02) -> Route:
-    """A route bent sideways by ``ROUTE_BEND`` at a uniform point 35–65 % of the way (two draws from ``rng``)."""
+def sample_route(rng: np.random.Generator, geometry: TaskGeometry = GEOMETRY, spacing: float = 0.02,
+                 layout: RouteLayout = LAYOUTS["route"]) -> Route:
+    """A route bent sideways by ``ROUTE_BEND`` at a uniform point 35–65 % of the way (two draws from ``rng``),
+    its band ``layout.clearance`` wider than the held box and hand."""
     start, goal = np.asarray(geometry.path_start_xy, float), np.asarray(geometry.goal_xy, float)
     along, side = rng.uniform(0.35, 0.65), rng.uniform(-1.0, 1.0)
     far_neg, near_neg, near_pos, far_pos = ROUTE_BEND
@@ -80,9 +109,9 @@ def sample_route(rng: np.random.Generator, geometry: TaskGeometry = GEOMETRY, sp
         count = max(2, int(np.ceil(np.linalg.norm(b - a) / spacing)) + 1)
         legs.append(a + np.linspace(0.0, 1.0, count)[:, None] * (b - a))
     hx, hy, _ = geometry.box_half_extents
-    half = (hx + ROUTE_HAND_OVERHANG + ROUTE_CLEARANCE, hy + ROUTE_CLEARANCE)
+    half = (hx + ROUTE_HAND_OVERHANG + layout.clearance, hy + layout.clearance)
     return Route(points=np.concatenate([legs[0], legs[1][1:]]), half_extents=half,
-                 waypoint=(float(waypoint[0]), float(waypoint[1])), bend=float(bend))
+                 waypoint=(float(waypoint[0]), float(waypoint[1])), bend=float(bend), layout=layout)
 
 
 def _route_frame(route: Route) -> tuple:
@@ -95,19 +124,20 @@ def _route_frame(route: Route) -> tuple:
 
 def _beside_route(route: Route, frame: tuple, r: float, gap: float):
     """Map two uniform draws per try to a point just outside the route's band: the first picks where along the
-    way (``NEAR_ROUTE_SPAN``), the second the side (the inside of the bend with probability ``INNER_SHARE``)
+    way (``NEAR_ROUTE_SPAN``), the second the side (the inside of the bend with the layout's ``inner_share``)
     and how far out (uniform, up to ``gap`` beyond the band's edge)."""
     points, steps, seg_len, cum, normals = frame
     hx, hy = route.half_extents
     inner_sign = 1.0 if route.bend >= 0 else -1.0
+    inner_share = route.layout.inner_share
 
     def to_xy(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         s = (NEAR_ROUTE_SPAN[0] + (NEAR_ROUTE_SPAN[1] - NEAR_ROUTE_SPAN[0]) * u[:, 0]) * cum[-1]
         seg = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(steps) - 1)
         base = points[seg] + ((s - cum[seg]) / seg_len[seg])[:, None] * steps[seg]
         n = normals[seg]
-        inner = u[:, 1] < INNER_SHARE
-        beyond = np.where(inner, u[:, 1] / INNER_SHARE, (u[:, 1] - INNER_SHARE) / (1.0 - INNER_SHARE)) * gap
+        inner = u[:, 1] < inner_share
+        beyond = np.where(inner, u[:, 1] / inner_share, (u[:, 1] - inner_share) / (1.0 - inner_share)) * gap
         # the band's half-width across the way (the kept rectangle's support along the normal), the object's
         # radius and clearance, then 0 to ``gap`` more; the straight path lies on the -normal side of both legs
         # when the route bends to +normal
@@ -166,7 +196,7 @@ def sample_placement(radii: np.ndarray, rng: np.random.Generator, near_path_frac
     ``round(near_path_fraction * N)`` objects go near the task path, as long as it has room (``near_path`` says
     which did); the rest anywhere on the free table. Without a ``route``, near means within a corridor of
     half-width 0.14 m (0.30 m if crowded) around the segment from the pulled-out box to the goal. With one,
-    near means at most ``NEAR_ROUTE_GAP`` (0.30 m if crowded) outside the route's band, and no object stands
+    near means at most the route layout's ``near_gap`` (0.30 m if crowded) outside the route's band, and no object stands
     on the band. Deterministic for a given generator state.
     """
     n = len(radii)
@@ -202,7 +232,8 @@ def sample_placement(radii: np.ndarray, rng: np.random.Generator, near_path_frac
         if route is None:
             close, crowded = corridor(0.14), corridor(0.30)
         else:
-            close, crowded = _beside_route(route, frame, r, NEAR_ROUTE_GAP), _beside_route(route, frame, r, 0.30)
+            close, crowded = (_beside_route(route, frame, r, route.layout.near_gap),
+                             _beside_route(route, frame, r, 0.30))
         phases = [(max_tries // 4, close), (max_tries - max_tries // 4, crowded),
                   (max_tries, anywhere)] if want_near else [(max_tries, anywhere)]
         found = None
