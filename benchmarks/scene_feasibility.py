@@ -139,8 +139,9 @@ def main() -> None:
     p.add_argument("--scenes", type=int, default=500)
     p.add_argument("--seed", type=int, default=9, help="scene seeds are seed * 100000 + i")
     p.add_argument("--planner", action="store_true", help="also drive every scene with the privileged planner")
-    p.add_argument("--layout", choices=("route", "straight"), default="route",
-                   help="the default layout with a route kept clear, or the old straight corridor")
+    p.add_argument("--layout", choices=("route", "narrow", "straight"), default="route",
+                   help="a layout with a route kept clear (the default 'route', or 'narrow': every object beside "
+                        "it, 1 cm to spare), or the old straight corridor")
     p.add_argument("--results", nargs="+", metavar="EVAL_DIR",
                    help="instead: success by the room each scene leaves, for these evaluations' episodes")
     args = p.parse_args()
@@ -159,7 +160,8 @@ def main() -> None:
     print(f"{'N':>2} {'scenes':>6} " + " ".join(f"{c:>22}" for c in columns) + f" {'ms/scene':>8}")
     for n in args.objects:
         env = SlideOutEnv(n_objects=n, classes=f"{n} fragile", constraints="conservative",
-                          clear_route=args.layout == "route")
+                          clear_route=args.layout != "straight",
+                          layout="route" if args.layout == "straight" else args.layout)
         t0 = time.perf_counter()
         blocked = alone = arm = placed = placed_open = 0
         for i in range(args.scenes):

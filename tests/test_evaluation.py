@@ -15,6 +15,7 @@ from safemanip.evaluation.parallel import chunk_seeds, run_episodes
 from safemanip.rl.checkpoint import save_policy
 from safemanip.rl.numpy_actor import NumpyActor
 from safemanip.scene.catalog import load_catalog
+from safemanip.scene.placement import LAYOUTS
 from safemanip.selection.reducer import Reducer
 from safemanip.selection.selectors import ConservativeConstraints, DynamicKNN, GroundTruthConstraints
 from safemanip.selection.view import EnvViewBuilder
@@ -152,6 +153,20 @@ def test_vlm_selector_gets_annotated_frames_only_when_it_queries():
 
 
 # ------------------------------------------------------------------------------------------ requests
+def test_a_policy_runs_on_its_own_layout_unless_another_is_asked_for(tmp_path):
+    pol = make_policy(tmp_path / "rarl-k2-conservative.safetensors", 2)
+    own = prepare(EvalRequest(policy=pol, episodes=1)).spec.env_kwargs
+    assert (own["layout"], own["clear_route"]) == ("route", True)
+    narrow = prepare(EvalRequest(policy=pol, episodes=1, layout="narrow")).spec.env_kwargs
+    # the narrow layout with its own share of objects beside the route, not the policy's recorded one
+    assert (narrow["layout"], narrow["clear_route"], narrow["near_path_fraction"]) == ("narrow", True, None)
+    env = SlideOutEnv(**{**narrow, "constraints": "conservative"})
+    env.reset(seed=3)
+    assert env.placement.near_path.all() and env.placement.route.layout is LAYOUTS["narrow"]
+    with pytest.raises(EvalConfigError, match="unknown --layout 'tight'; choose one of route, narrow"):
+        prepare(EvalRequest(policy=pol, episodes=1, layout="tight"))
+
+
 def test_validation_lists_every_problem_before_any_work(tmp_path):
     pol = make_policy(tmp_path / "rarl-k2-conservative.safetensors", 2)
     with pytest.raises(EvalConfigError) as err:

@@ -142,18 +142,19 @@ def test_a_walled_off_scene_is_reported_and_the_pull_still_leaves_the_top_box_in
 
 
 @pytest.mark.slow
-def test_every_default_scene_is_open_for_the_arm_and_the_straight_layout_walls_most_off():
-    """The default layout keeps a route clear (``scene.placement.sample_route``): the arm can carry the box to the
-    goal in every scene, at every N. The old straight-corridor layout (``clear_route=False``) stays available and
+def test_every_route_scene_is_open_for_the_arm_and_the_straight_layout_walls_most_off():
+    """The route layouts keep a route clear (``scene.placement.sample_route``): the arm can carry the box to the
+    goal in every scene, at every N, also in the narrow channel. The old straight-corridor layout (``clear_route=False``) stays available and
     still walls off most scenes with four objects, which is why the default changed."""
     from safemanip.control.planner import open_for_the_arm
 
-    for n in (1, 2, 4, 6, 8):
-        env = SlideOutEnv(n_objects=n, classes=f"{n} fragile", constraints="conservative")
-        for seed in range(25):
-            env.reset(seed=700_000 + seed)
-            assert env.placement.route is not None
-            assert open_for_the_arm(env), f"N = {n}, seed {700_000 + seed}: no way for the arm"
+    for layout in ("route", "narrow"):
+        for n in (1, 2, 4, 6, 8):
+            env = SlideOutEnv(n_objects=n, classes=f"{n} fragile", constraints="conservative", layout=layout)
+            for seed in range(25):
+                env.reset(seed=700_000 + seed)
+                assert env.placement.route is not None
+                assert open_for_the_arm(env), f"{layout} layout, N = {n}, seed {700_000 + seed}: no way for the arm"
     straight = SlideOutEnv(n_objects=4, classes="4 fragile", constraints="conservative", clear_route=False)
     opened = 0
     for seed in range(25):
