@@ -196,6 +196,34 @@ def test_bf16_and_fp32_give_the_same_target_on_a_fixed_batch(network):
     assert q16.dtype == torch.bfloat16
 
 
+@pytest.mark.parametrize("network", ["mlp", "set"])
+def test_a_saturated_actor_still_learns_in_bf16(network):
+    """tanh of a bf16 pre-activation rounds to exactly 1 beyond |x| ~ 3.5, where its gradient is then exactly 0; an
+    actor pinned there never moved again (a bf16 training run sat at zero success for 10 minutes while its fp32
+    twin recovered). The squashing runs in fp32, so the actor's weights move in bf16 as they do in fp32."""
+    cfg = TrainConfig(**{**SMALL, "hidden": (64, 64)}, network=network, set_embed=32, policy_delay=1)
+    moved = {}
+    for name in ("fp32", "bf16"):
+        torch.manual_seed(5)
+        learner = Learner(OBS, ACT, cfg, precision=Precision("cpu", name, "test"))
+        with torch.no_grad():  # pin every action component at the bound: pre-activations around 6
+            if network == "mlp":
+                weight, bias = learner.actor.net[-1].weight, learner.actor.net[-1].bias
+            else:
+                weight, bias = learner.actor.net.head.weights[-1], learner.actor.net.head.biases[-1]
+            weight.mul_(0.01)
+            bias.fill_(6.0)
+        b = batch(64)
+        b = b._replace(obs=slots_present(b.obs), next_obs=slots_present(b.next_obs))
+        before = params(learner.actor)
+        metrics = learner.update(b, 0.99)
+        assert metrics["actor/saturated"] == 1.0
+        moved[name] = max(float((a - c).abs().max()) for a, c in zip(params(learner.actor), before))
+        with learner.autocast():
+            assert learner.actor(b.obs).dtype == torch.float32  # the squashing left autocast's bf16
+    assert moved["bf16"] > 0.1 * moved["fp32"] > 0, moved
+
+
 def test_precision_choice_is_explained():
     fp32 = resolve_precision("fp32", torch.device("cpu"))
     assert fp32.dtype == "fp32" and "asked" in fp32.reason

@@ -19,7 +19,7 @@ import torch
 from safemanip.rl.backup import discounted_return_target, reach_avoid_target
 from safemanip.rl.buffer import Batch
 from safemanip.rl.config import TrainConfig
-from safemanip.rl.networks import make_networks
+from safemanip.rl.networks import make_networks, squash
 from safemanip.rl.precision import Precision, resolve_device, resolve_precision
 
 
@@ -109,7 +109,7 @@ class Learner:
             self.critic.requires_grad_(False)  # the actor loss needs no critic weight gradients
             with self.autocast():
                 pre_tanh = self.actor.pre_tanh(batch.obs)
-                actions = torch.tanh(pre_tanh)
+                actions = squash(pre_tanh)  # in fp32: a bf16 tanh has no gradient once saturated
                 q1 = self.critic(batch.obs, actions, head=0)
             actor_loss = -q1.float().mean()
             if cfg.actor_preactivation_penalty > 0:  # keeps the actor where tanh still has a gradient

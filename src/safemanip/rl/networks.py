@@ -77,6 +77,13 @@ class StackedMLP(nn.Module):
 
 
 # ------------------------------------------------------------------------------------------ flat (paper)
+def squash(pre_tanh: torch.Tensor) -> torch.Tensor:
+    """The action: tanh of the pre-activation, always in fp32. Under bf16 autocast tanh would run in bf16, which
+    rounds tanh(x) to exactly 1 for |x| > 3.5 and so makes its gradient exactly 0: a saturated actor then never
+    recovers. In fp32 the gradient there is small but not zero, and Adam's normalised steps bring it back."""
+    return torch.tanh(pre_tanh.float())
+
+
 class Actor(nn.Module):
     def __init__(self, obs_dim: int, act_dim: int, hidden: tuple[int, ...]):
         super().__init__()
@@ -87,7 +94,7 @@ class Actor(nn.Module):
         return self.net(obs)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        return torch.tanh(self.pre_tanh(obs))
+        return squash(self.pre_tanh(obs))
 
 
 class Critic(nn.Module):
@@ -151,7 +158,7 @@ class SetActor(nn.Module):
         return self.net(obs)[0]
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        return torch.tanh(self.pre_tanh(obs))
+        return squash(self.pre_tanh(obs))
 
 
 class SetCritic(nn.Module):
