@@ -76,7 +76,6 @@ class StackedMLP(nn.Module):
         return torch.relu(x) if self.relu_last else x
 
 
-# ------------------------------------------------------------------------------------------ flat (paper)
 def squash(pre_tanh: torch.Tensor) -> torch.Tensor:
     """The action: tanh of the pre-activation, always in fp32. Under bf16 autocast tanh would run in bf16, which
     rounds tanh(x) to exactly 1 for |x| > 3.5 and so makes its gradient exactly 0: a saturated actor then never
@@ -84,6 +83,7 @@ def squash(pre_tanh: torch.Tensor) -> torch.Tensor:
     return torch.tanh(pre_tanh.float())
 
 
+# ------------------------------------------------------------------------------------------ flat (paper)
 class Actor(nn.Module):
     def __init__(self, obs_dim: int, act_dim: int, hidden: tuple[int, ...]):
         super().__init__()
