@@ -11,11 +11,13 @@ import numpy as np
 import pytest
 
 import safemanip  # noqa: F401
-from safemanip.control.diff_ik import MAX_EE_ACCEL, MAX_EE_SPEED, limit_ee_velocity, limit_joint_velocity
+from safemanip.control.diff_ik import (MAX_EE_ACCEL, MAX_EE_SPEED, limit_ee_velocity, limit_joint_acceleration,
+                                       limit_joint_velocity)
 from safemanip.env.slide_out import SlideOutEnv
 from safemanip.scene.config import GEOMETRY
-from safemanip.scene.panda import (FRANKA_JOINT_RANGES, FRANKA_JOINT_SPEEDS, FRANKA_JOINT_TORQUES, JOINTS,
-                                   load_panda_spec, panda_asset_dir)
+from safemanip.scene.grasp import PAD_MASS
+from safemanip.scene.panda import (FRANKA_JOINT_ACCELS, FRANKA_JOINT_JERKS, FRANKA_JOINT_RANGES, FRANKA_JOINT_SPEEDS,
+                                   FRANKA_JOINT_TORQUES, JOINTS, load_panda_spec, panda_asset_dir)
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -25,9 +27,12 @@ def test_the_model_loads_from_the_installed_package_and_is_not_copied_here():
 
     folder = panda_asset_dir()
     assert folder.is_relative_to(Path(gymnasium_robotics.__file__).parent)
-    model = load_panda_spec(visual=True).compile()
-    assert model.nmesh == 20  # 9 collision + 9 visual link meshes + 2 finger meshes, all from that folder
-    assert sum(model.body_mass) == pytest.approx(18.0, abs=0.05)
+    spec = load_panda_spec(visual=True)
+    files = [m.file for m in spec.meshes if m.file]
+    assert len(files) == 20  # 9 collision + 9 visual link meshes + 2 finger meshes, all from that folder
+    assert all(Path(f).resolve().is_relative_to(folder.resolve()) for f in files)
+    model = spec.compile()
+    assert sum(model.body_mass) == pytest.approx(18.0 + 2 * PAD_MASS, abs=0.05)  # and the two pads
     # (the package may sit in a .venv inside the checkout: what matters is that git tracks none of it)
     tracked = subprocess.run(["git", "ls-files"], cwd=REPO, capture_output=True, text=True).stdout.split()
     assert not [f for f in tracked if (REPO / f).resolve().is_relative_to(folder.resolve())]
@@ -41,7 +46,8 @@ def test_the_corrections_are_applied():
         assert joint.damping[0] == pytest.approx(1.0) and joint.armature[0] == pytest.approx(0.1)
         np.testing.assert_allclose(joint.range, FRANKA_JOINT_RANGES[i])
     assert np.all(model.body_gravcomp[1:] == 1.0)
-    assert model.njnt == 7  # the fingers are fixed (closed on the box)
+    assert model.njnt == 9  # the fingers are fixed (opened); each pad slides on its spring
+    assert [model.joint(i).name for i in range(7, 9)] == ["pad_left", "pad_right"]
     data = mujoco.MjData(model)
     data.qpos[:7] = 0.0
     mujoco.mj_kinematics(model, data)
@@ -73,7 +79,7 @@ def test_servos_are_torque_limited_like_a_panda():
     assert env.model.nu == 7
 
 
-def test_home_puts_the_fingertips_on_the_lip_with_the_hand_down():
+def test_home_puts_the_pads_on_the_lip_with_the_hand_down():
     env = SlideOutEnv(n_objects=0)
     env.reset(seed=0)
     d, b = env.data, env.binding
@@ -111,29 +117,62 @@ def test_joint_limiter_keeps_direction_and_brakes_before_the_range_ends():
     assert away[0] == pytest.approx(-2.0)  # moving away from a limit is never held back
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("actions", ["random", "full-scale"])
-def test_franka_limits_are_never_exceeded(actions):
-    """Watching every 2 ms physics step over random and full-scale (corner of the action cube) actions:
-    commanded speed <= 1.7 m/s and commanded acceleration <= 13 m/s^2 exactly; achieved end-effector speed,
-    joint speeds and joint positions within Franka's limits at every substep; achieved acceleration,
-    averaged over each control step, within 13 m/s^2 (+5 %)."""
-    env = SlideOutEnv(n_objects=0)
-    rng = np.random.default_rng(0)
-    samples = []
+def test_joint_acceleration_limiter_scales_the_change_and_keeps_its_direction():
+    previous, wanted, cap = np.array([1.0, 0.0]), np.array([2.0, -2.0]), np.array([0.5, 0.5])
+    qdot = limit_joint_acceleration(wanted, previous, cap)
+    np.testing.assert_allclose(qdot, [1.25, -0.5])  # the change (1, -2) scaled by 1/4: joint 2 at its cap
+    np.testing.assert_allclose(limit_joint_acceleration(np.array([1.2, 0.1]), previous, cap), [1.2, 0.1])
 
+
+def test_braking_leaves_room_for_one_more_control_step():
+    """Discrete braking: hold v for dt, then stop at a: v dt + v^2 / 2a <= s."""
+    s, a, dt = 0.05, 6.0, 0.05
+    v = limit_joint_velocity(np.array([5.0]), np.array([1.0 - s]), -np.ones(1), np.ones(1), np.full(1, 9.0),
+                             np.full(1, a), dt)[0]
+    assert v * dt + v * v / (2 * a) == pytest.approx(s)
+    assert v < np.sqrt(2 * a * s)  # stricter than the continuous curve
+
+
+def _watch_arm(env, samples):
     def watch(e):
         velocity = np.zeros(6)
         mujoco.mj_objectVelocity(e.model, e.data, mujoco.mjtObj.mjOBJ_SITE, e.binding.ee_site, velocity, 0)
         samples.append((velocity[3:].copy(), e.data.qvel[e.binding.dof_adr].copy(), e.data.qpos[e.binding.qpos_adr].copy()))
-
     env.watch_substeps(1, watch)
-    for episode in range(6):
+
+
+def assert_within_franka_joint_limits(qdot: np.ndarray, q: np.ndarray) -> None:
+    """Joint speeds and positions at every substep; joint accelerations over every 50 ms window (a sliding one,
+    starting at every 2 ms substep) and jerk between consecutive windows, within Franka's published limits."""
+    assert np.all(np.abs(qdot) <= FRANKA_JOINT_SPEEDS)
+    assert np.all(q >= FRANKA_JOINT_RANGES[:, 0]) and np.all(q <= FRANKA_JOINT_RANGES[:, 1])
+    window = 25  # substeps in 50 ms
+    accel = (qdot[window:] - qdot[:-window]) / 0.05
+    worst = np.abs(accel).max(axis=0) / FRANKA_JOINT_ACCELS
+    assert np.all(worst <= 1.0), f"joint accelerations reach {np.round(worst, 3)} of Franka's limits"
+    jerk = (accel[window:] - accel[:-window]) / 0.05
+    assert np.all(np.abs(jerk) <= FRANKA_JOINT_JERKS)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("actions", ["random", "full-scale"])
+def test_franka_limits_are_never_exceeded(actions):
+    """Watching every 2 ms physics step over random and full-scale (corner of the action cube) actions, among
+    clutter: commanded speed <= 1.7 m/s and commanded acceleration <= 13 m/s^2 exactly; achieved end-effector
+    speed, joint speeds, positions, accelerations and jerks within Franka's limits (``assert_within_franka_joint_
+    limits``); achieved Cartesian acceleration, averaged over each control step, within 13 m/s^2 (+5 %)."""
+    env = SlideOutEnv(n_objects=4)
+    rng = np.random.default_rng(0)
+    samples = []
+    _watch_arm(env, samples)
+    for episode in range(12):
         env.reset(seed=episode)
         samples.clear()
+        _watch_arm(env, samples)
+        env._substep_hook[1](env)  # the state at the start of the episode
         previous_command = np.zeros(3)
         step_end_velocities = [np.zeros(3)]
-        for _ in range(30):
+        for _ in range(40):
             a = rng.uniform(-1, 1, 3) if actions == "random" else np.sign(rng.uniform(-1, 1, 3))
             *_, terminated, _, _ = env.step(a.astype(np.float32))
             command = env._command
@@ -144,11 +183,8 @@ def test_franka_limits_are_never_exceeded(actions):
             if terminated:
                 break
         ee_velocity = np.array([s[0] for s in samples])
-        qdot = np.array([s[1] for s in samples])
-        q = np.array([s[2] for s in samples])
         assert np.linalg.norm(ee_velocity, axis=1).max() <= MAX_EE_SPEED
-        assert np.all(np.abs(qdot) <= FRANKA_JOINT_SPEEDS)
-        assert np.all(q >= FRANKA_JOINT_RANGES[:, 0]) and np.all(q <= FRANKA_JOINT_RANGES[:, 1])
+        assert_within_franka_joint_limits(np.array([s[1] for s in samples]), np.array([s[2] for s in samples]))
         per_step = np.linalg.norm(np.diff(np.array(step_end_velocities), axis=0), axis=1) / 0.05
         assert per_step.max() <= 1.05 * MAX_EE_ACCEL, per_step.max()
 

@@ -132,7 +132,7 @@ def test_a_walled_off_scene_is_reported_and_the_pull_still_leaves_the_top_box_in
     planner = GridPlanner()
     _, info = env.reset(seed=3)
     wall = [(0.15, y, 0.03, 0.0, 0.2) for y in np.arange(-0.45, 0.46, 0.04)]
-    monkeypatch.setattr(planner_module, "part_extents", lambda env: wall)
+    monkeypatch.setattr(planner_module, "part_extents", lambda env, objects=None: wall)
     planner.reset(env)
     assert planner.clearance is None, "no clearance reaches the goal through the wall"
     for _ in range(6):  # the pull: fast and straight out, so the top box stays in its safe set

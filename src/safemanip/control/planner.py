@@ -25,11 +25,16 @@ from safemanip.scene.panda import holding_reach
 GRID = 0.01
 """Grid spacing of the planner's free-space map [m] (``scene_feasibility.py``'s box-alone test uses 5 mm)."""
 
+PLANNER_AVOID = ("all", "fragile")
+"""What the planner keeps clear of: every object, or only those the episode's constraints make ``no_contact``
+(it drives through the others, soft ones at the planned speeds of at most 0.8 m/s)."""
+
 _NEIGHBOURS = [(dx, dy, math.hypot(dx, dy)) for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy]
 
 
-def part_extents(env) -> list[tuple[float, float, float, float, float]]:
-    """Vertical cylinders (x, y, radius, z low, z high) covering every object geom at its current pose.
+def part_extents(env, objects=None) -> list[tuple[float, float, float, float, float]]:
+    """Vertical cylinders (x, y, radius, z low, z high) covering every object geom at its current pose (of the
+    objects with the ids ``objects`` only, if given).
 
     A round part is one cylinder. An elongated footprint (an upright box longer than wide, a cylinder or
     capsule lying down) is a row of cylinders along its long axis, each covering a slice no longer than
@@ -37,7 +42,8 @@ def part_extents(env) -> list[tuple[float, float, float, float, float]]:
     """
     m, d, idx = env.model, env.data, env.index
     parts = []
-    bodies = set(int(b) for b in idx.object_bodies)
+    ids = range(len(idx.object_bodies)) if objects is None else objects
+    bodies = set(int(idx.object_bodies[i]) for i in ids)
     for g in range(m.ngeom):
         if int(m.geom_bodyid[g]) not in bodies:
             continue
@@ -223,18 +229,24 @@ class GridPlanner:
     speed and acceleration limits apply on top, as for any policy.
     """
 
-    def __init__(self, pull_speed: float = 1.0, clearances: tuple[float, ...] = (0.06, 0.04, 0.02, 0.0),
+    def __init__(self, pull_speed: float = 1.3, clearances: tuple[float, ...] = (0.06, 0.04, 0.02, 0.0),
                  speeds: tuple[float, ...] = (0.8, 0.6, 0.4, 0.25), penalties: tuple[float, ...] = (0.0, 1.0, 3.0, 8.0),
                  braking: float = 2.0, lookahead: float = 0.08, settle_time: float = 0.2,
-                 pull_angle: float = 45.0):
+                 pull_angle: float = 0.0, avoid: str = "all", pull_braking: float = 2.0, stop_margin: float = 0.03,
+                 soft_speed: float = 0.3):
         """``pull_speed``: the pull out from under the top box (>= 0.75 m/s leaves the top box in place on the
-        Panda); ``clearances``: extra room beyond d4 [m], widest first, with the top speed [m/s] and the
+        Panda, ``benchmarks/tablecloth.py``); ``clearances``: extra room beyond d4 [m], widest first, with the top speed [m/s] and the
         extra cost per metre (``penalties``) of cells that leave only that much; ``braking``: the deceleration
         planned into the goal [m/s^2]; ``lookahead``: how far down the path the box heads [m];
         ``settle_time``: the time constant of the final approach to the goal centre [s]; ``pull_angle``: how
-        far aside the pull may head [deg] (more drags the top box along)."""
+        far aside the pull may head [deg]: heading aside asks the shoulder and elbow, the joints that accelerate
+        least, to move, which slows the whole pull, and at 10 deg the top box already comes along."""
         if not (len(speeds) == len(penalties) == len(clearances)) or list(clearances) != sorted(clearances, reverse=True):
             raise ValueError("clearances must be widest first, with one speed and one penalty each")
+        if avoid not in PLANNER_AVOID:
+            raise ValueError(f"avoid must be one of {PLANNER_AVOID}, got {avoid!r}")
+        self.avoid = avoid
+        self.pull_braking, self.stop_margin, self.soft_speed = pull_braking, stop_margin, soft_speed
         self.pull_speed, self.clearances, self.speeds, self.penalties = pull_speed, clearances, speeds, penalties
         self.braking, self.lookahead, self.settle_time = braking, lookahead, settle_time
         self.pull_slope = math.tan(math.radians(pull_angle))
@@ -246,7 +258,8 @@ class GridPlanner:
         self._space = self._field = self._speed = None
         if env is None:
             return
-        parts = part_extents(env)
+        avoided = None if self.avoid == "all" else [i for i, c in enumerate(env.constraints) if c == "no_contact"]
+        parts = part_extents(env, avoided)
         reach = holding_reach(env.geometry) if getattr(env.robot, "name", None) == "panda" else None
         # the safe edge of the reach map: on the generous one the arm can stall against a joint limit
         spaces = [FreeSpace(env, clearance, parts=parts, reach=reach, reach_edge="all") for clearance in self.clearances]
@@ -259,6 +272,11 @@ class GridPlanner:
         centre = (px - gx) ** 2 + (py - gy) ** 2 < (0.5 * env.thresholds.goal_radius) ** 2
         goal = centre if (centre & space.free).any() else space.goal
         self._space, self._speed = space, np.asarray(self.speeds)[level]
+        soft = [i for i, c in enumerate(env.constraints) if c == "soft_contact"] if self.avoid == "fragile" else []
+        self._touching = np.zeros(space.free.shape, dtype=bool)
+        if soft:  # where the box would touch a soft object, it goes slowly enough to touch it gently
+            self._touching = ~FreeSpace(env, 0.0, parts=part_extents(env, soft)).free
+            self._speed = np.where(self._touching, np.minimum(self._speed, self.soft_speed), self._speed)
         self._field = space.distance_to_goal(1.0 + np.asarray(self.penalties)[level], goal)
         sx, sy = env.geometry.path_start_xy
         # the room the scene leaves (None: walled off): the widest clearance that reaches the goal, tried widest first
@@ -281,8 +299,7 @@ class GridPlanner:
         if field is None or not math.isfinite(field[i, j]):  # walled off (or no map)
             if pulling:  # the pull still has to be fast, or the top box comes along
                 return self._action(np.array([self.pull_speed, 0.0, 0.0]), env)
-            heading = np.array([gx - x, gy - y]) / max(to_goal, 1e-9)  # straight at the goal, slowly
-            return self._action(np.array([*(0.2 * heading), 0.0]), env)
+            return np.zeros(3, dtype=np.float32)  # no way through what it avoids: it stays put (a timeout)
         ti, tj, top_speed = i, j, self._speed[i, j]
         for _ in range(int(self.lookahead / space.grid)):  # walk down the field
             best = (field[ti, tj], ti, tj)
@@ -301,7 +318,15 @@ class GridPlanner:
         if pulling:
             heading[1] = min(max(heading[1], -self.pull_slope * heading[0]), self.pull_slope * heading[0])
             heading[0] = max(heading[0], 1e-3)  # keep pulling outwards, at most pull_angle aside
-            return self._action(np.array([*(heading / np.linalg.norm(heading) * self.pull_speed), 0.0]), env)
+            # no faster than lets the box stop before what it avoids straight ahead of the lane, or slow down to a
+            # gentle touch before a soft object there
+            speed = self.pull_speed
+            for ahead_of, end_speed in ((~space.free[i:, j], 0.0), (self._touching[i:, j], self.soft_speed)):
+                blocked = np.flatnonzero(ahead_of)
+                if len(blocked):
+                    ahead = max(space.xs[i + blocked[0]] - x - self.stop_margin, 0.0)
+                    speed = min(speed, math.sqrt(end_speed ** 2 + 2 * self.pull_braking * ahead))
+            return self._action(np.array([*(heading / np.linalg.norm(heading) * speed), 0.0]), env)
         speed = min(top_speed, math.sqrt(2 * self.braking * to_goal) + 0.05)
         return self._action(np.array([*(heading / norm * speed), 0.0]), env)
 

@@ -22,8 +22,10 @@ class Thresholds:
     """d1: gap required between the footprints of the two boxes for the bottom one to count as out."""
     goal_radius: float = 0.08
     """d2: the bottom box centre must be within this distance of the goal centre."""
-    top_box_displacement: float = 0.10
-    """d3: the top box may move at most this far (horizontally) from where it started."""
+    top_box_displacement: float = 0.12
+    """d3: the top box may move at most this far (horizontally) from where it started. The paper gives no value; a
+    Panda within its joint accelerations pulls the box out fast enough to leave the top box 9-11 cm from its start
+    (``benchmarks/tablecloth.py``), a pull at 0.5 m/s drags it 14 cm and more."""
     top_box_min_up: float = 0.5
     """The top box's up-axis must keep a z-component above this (cos 60 deg); lower means it flipped."""
     collision: float = 0.01

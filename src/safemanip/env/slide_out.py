@@ -29,13 +29,16 @@ from safemanip.scene.builder import CONTROL_DT, SUBSTEPS, SceneIndex, build_mode
 from safemanip.scene.catalog import CONSTRAINT_TYPES, load_catalog, names_of_class
 from safemanip.scene.config import GEOMETRY, SceneConfig
 from safemanip.scene.embodiment import EMBODIMENTS, make_embodiment
+from safemanip.control.planner import open_for_the_arm, part_extents
 from safemanip.scene.placement import LAYOUTS, sample_placement, sample_route
 
 CONSTRAINT_MODES = ("ground_truth", "conservative", "random")
 EVENTS = ("running", "success", "failure:dyn", "failure:hard", "failure:soft", "failure:oob", "timeout", "unstable")
 DISTANCE_CAP = 0.3  # geom distances saturate here: far objects do not need an exact value
 _MANIPULATED_REACH = 0.25  # bounding radius of the held box and the hand around the box centre
-LIFT_BAND = 0.02  # the box may be lifted at most this far above resting on the table [m]
+LIFT_BAND = 0.02  # the hand may rise this far above pressing on the lip [m]: up to 1 cm it still drags the box
+SCENE_TRIES = 20  # draws of a gate or exit scene before the episode falls back to an open one
+RESTING_TOLERANCE = 0.002  # success needs the held box on the table: its bottom face at most this high [m]
 
 
 class SlideOutEnv(gym.Env):
@@ -47,13 +50,19 @@ class SlideOutEnv(gym.Env):
                  thresholds: M.Thresholds = M.DEFAULT_THRESHOLDS, sleep: bool = True, slot_order: str = "index",
                  render_size: tuple[int, int] = (480, 640), embodiment: str = "panda", visual: bool | None = None,
                  action_curve: float = 1.0, object_size: bool = False, clear_route: bool = True,
-                 layout: str = "route"):
+                 layout: str = "route", gate_share: float | None = None, exit_share: float | None = None,
+                 check_scenes: bool = True):
         if isinstance(classes, str):
             from safemanip.scene.config import parse_semantics
             classes = parse_semantics(classes)
         self.config = SceneConfig(n_objects=n_objects, names=tuple(names) if names else None,
                                   classes=tuple(classes) if classes else None, near_path_fraction=near_path_fraction,
-                                  clear_route=clear_route, layout=layout)
+                                  clear_route=clear_route, layout=layout, gate_share=gate_share,
+                                  exit_share=exit_share)
+        if not isinstance(check_scenes, (bool, np.bool_)):
+            raise ValueError(f"check_scenes must be true or false, got {check_scenes!r}")
+        self.check_scenes = bool(check_scenes)
+        """Confirm each gate and exit scene with the planner's free-space map (``_is_its_kind``, ~25 ms a draw)."""
         if isinstance(constraints, str):
             if constraints not in CONSTRAINT_MODES:
                 raise ValueError(f"constraints must be one of {CONSTRAINT_MODES} or a list of {CONSTRAINT_TYPES}, "
@@ -179,18 +188,9 @@ class SlideOutEnv(gym.Env):
         self.names = names
         self.model, self.data, self.index, self.binding, self.gather = self._sim(names)
         self.constraints = self._choose_constraints(options.get("constraints", self.constraint_mode), rng)
-        route = sample_route(rng, self.geometry, layout=LAYOUTS[self.config.layout]) if self.config.clear_route else None
-        placement = sample_placement(self._footprint_radii(names), rng, self.config.near_fraction, self.geometry,
-                                     route=route)
-        self.placement = placement  # this episode's initial layout (``near_path``: which objects stand in the corridor)
+        # this episode's initial layout (``near_path``: which objects stand beside the route; ``kind``, ``roles``)
+        self.placement = self._place_scene(self._draw_kind(rng), rng)
         m, d, idx = self.model, self.data, self.index
-        mujoco.mj_resetData(m, d)
-        self.robot.reset(m, d, self.binding)
-        for i in range(len(names)):
-            adr = idx.object_qpos[i]
-            d.qpos[adr:adr + 3] = (*placement.xy[i], 0.0005)
-            d.qpos[adr + 3:adr + 7] = (np.cos(placement.yaw[i] / 2), 0, 0, np.sin(placement.yaw[i] / 2))
-        mujoco.mj_forward(m, d)
         self._top_start = d.xpos[idx.top_box_body, :2].tolist()
         self._episode_flat, self._soft_flags, self._checked_list, self._margin_names = \
             self._constraint_tables(names, self.constraints)
@@ -198,10 +198,54 @@ class SlideOutEnv(gym.Env):
         self._command = np.zeros(3)
         self._read_state()
         self._lift_band = (self._values[2], self._values[2] + LIFT_BAND)
+        self._height = self._values[2]  # the commanded height of the end-effector
         if not math.isfinite(sum(self._values)):
             raise RuntimeError("the scene is not finite right after reset: the model or the placement is broken")
         terms = self._margins()
         return self._observe(), self._info(terms, "running", None)
+
+    def _draw_kind(self, rng: np.random.Generator) -> str:
+        """This episode's scene kind (``SCENE_KINDS``), by the config's shares; an open layout draws nothing."""
+        gate, exit_ = self.config.kind_shares
+        if gate == 0.0 and exit_ == 0.0:
+            return "open"
+        u = float(rng.random())
+        return "gate" if u < gate else "exit" if u < gate + exit_ else "open"
+
+    def _place_scene(self, kind: str, rng: np.random.Generator):
+        """Sample a placement of ``kind`` and set the scene to it. A gate or exit scene is redrawn until the planner's
+        free-space map confirms what it is meant to be (``_is_its_kind``), at most ``SCENE_TRIES`` times; then it
+        becomes an open scene, and ``placement.kind`` says so."""
+        radii = self._footprint_radii(self.names)
+        fragile = np.array([c == "no_contact" for c in self.constraints], dtype=bool)
+        layout = LAYOUTS[self.config.layout]
+        for attempt in range(SCENE_TRIES if kind != "open" else 1):
+            route = sample_route(rng, self.geometry, layout=layout) if self.config.clear_route else None
+            placement = sample_placement(radii, rng, self.config.near_fraction, self.geometry, route=route, kind=kind,
+                                         fragile=fragile)
+            self._set_poses(placement)
+            if placement.kind == "open" or not self.check_scenes or self._is_its_kind(placement, fragile):
+                return placement
+        return self._place_scene("open", rng)
+
+    def _set_poses(self, placement) -> None:
+        m, d, idx = self.model, self.data, self.index
+        mujoco.mj_resetData(m, d)
+        self.robot.reset(m, d, self.binding)
+        for i in range(len(self.names)):
+            adr = idx.object_qpos[i]
+            d.qpos[adr:adr + 3] = (*placement.xy[i], 0.0005)
+            d.qpos[adr + 3:adr + 7] = (np.cos(placement.yaw[i] / 2), 0, 0, np.sin(placement.yaw[i] / 2))
+        mujoco.mj_forward(m, d)
+
+    def _is_its_kind(self, placement, fragile: np.ndarray) -> bool:
+        """A gate is closed to the arm avoiding every object and open avoiding the fragile ones only; an exit is
+        open (``control.planner.open_for_the_arm``, on the planner's 1 cm map of the scene as placed)."""
+        parts = part_extents(self)
+        if placement.kind == "exit":
+            return open_for_the_arm(self, parts)
+        breakable = part_extents(self, objects=np.flatnonzero(fragile))
+        return not open_for_the_arm(self, parts) and open_for_the_arm(self, breakable)
 
     # ------------------------------------------------------------------ dynamics
     def step(self, action):
@@ -211,9 +255,11 @@ class SlideOutEnv(gym.Env):
                              "policy's weights or its observation hold NaN")
         # by norm, not per axis (no faster diagonals), through the action curve (``shape_action``)
         request = shape_action(request, self.action_curve) * self.max_speed
-        z, (z_low, z_high) = self._values[2], self._lift_band
-        # the lift band; coming down, the box lands softly (an exponential approach over ~4 steps, not a drop)
-        request[2] = min(max(request[2], (z_low - z) / (4 * CONTROL_DT)), (z_high - z) / CONTROL_DT)
+        z_low, z_high = self._lift_band
+        # the lift band: the action moves the commanded height within the band, and the hand is sent there (the
+        # pads' push makes the velocity-servoed arm drift up by a few mm otherwise)
+        self._height = min(max(self._height + request[2] * CONTROL_DT, z_low), z_high)
+        request[2] = (self._height - self._values[2]) / CONTROL_DT
         command = limit_ee_velocity(request, self._command, CONTROL_DT, self.max_speed, self.max_accel)
         self._command = command
         m, d = self.model, self.data
@@ -241,12 +287,18 @@ class SlideOutEnv(gym.Env):
         if M.is_failure(g):
             event, culprit = self._failure_cause(terms)
             terminated = True
-        elif M.is_success(l, g):
+        elif M.is_success(l, g) and self._resting():
             event, terminated = "success", True
         elif self._t >= self.max_episode_steps:
             event, truncated = "timeout", True
         # reward: the paper's r = min(l, g); the reach-avoid learner reads l and g from info instead
         return self._observe(), float(min(l, g)), terminated, truncated, self._info(terms, event, culprit)
+
+    def _resting(self) -> bool:
+        """Whether the held box lies on the table (its bottom face within RESTING_TOLERANCE of the top): a box
+        placed in the goal, not one hanging from the hand."""
+        z = self._values[self.gather.bottom_pos.start + 2]
+        return z - self.geometry.box_half_extents[2] <= RESTING_TOLERANCE
 
     def _read_state(self) -> bool:
         """Read the state from MjData in two gathers into one flat array (layout: ``_StateGather``).
@@ -255,7 +307,7 @@ class SlideOutEnv(gym.Env):
         The ``SceneState`` view of it is built only when someone asks (``scene_state``).
         """
         g = self.gather
-        flat = np.concatenate((g.site_xpos[g.ee_site], g.sensordata[g.box_vel], g.qvel[g.qvel_index],
+        flat = np.concatenate((g.site_xpos[g.ee_site], g.sensordata[g.sensor_index], g.qvel[g.qvel_index],
                                g.xpos[g.body_rows].ravel(), self._episode_flat))
         values = flat.tolist()
         self._flat, self._values, self._state = flat, values, None
@@ -272,10 +324,9 @@ class SlideOutEnv(gym.Env):
     def _current_state(self) -> SceneState:
         if self._state is None:
             flat, g = self._flat, self.gather
-            ee_vel = flat[3:6]
             self._state = SceneState(
-                ee_pos=flat[0:3], ee_vel=ee_vel, bottom_pos=flat[g.bottom_pos], bottom_vel=ee_vel,  # rigidly held
-                top_pos=flat[g.top_pos], top_vel=flat[6:9], obj_pos=flat[g.obj_pos].reshape(-1, 3),
+                ee_pos=flat[g.ee_pos], ee_vel=flat[g.ee_vel], bottom_pos=flat[g.bottom_pos], bottom_vel=flat[g.box_vel],
+                top_pos=flat[g.top_pos], top_vel=flat[g.top_vel], obj_pos=flat[g.obj_pos].reshape(-1, 3),
                 obj_vel=flat[g.obj_vel].reshape(-1, 3), obj_radius=self._footprint_radii(self.names))
         return self._state
 
@@ -337,13 +388,14 @@ class SlideOutEnv(gym.Env):
         b0 = gather.bottom_pos.start
         bottom = v[b0:b0 + 2]
         top = v[b0 + 3:b0 + 5]
+        bvx, bvy, bvz = v[gather.box_vel]
         terms: dict[str, Any] = {
             "l1": M.margin_out_from_under(bottom, top, half, half, th.out_clearance),
             "l2": M.margin_in_goal(bottom, geo.goal_xy, th.goal_radius),
             "g_dyn": M.margin_top_box(top, self._top_start, float(gather.xmat[gather.top_up_z]),
                                       th.top_box_displacement, th.top_box_min_up),
             "g_oob": M.margin_in_workspace(bottom, geo.table_half_extents, geo.workspace_inset),
-            "l3": M.margin_at_rest(math.sqrt(v[3] * v[3] + v[4] * v[4] + v[5] * v[5]), th.place_speed,
+            "l3": M.margin_at_rest(math.sqrt(bvx * bvx + bvy * bvy + bvz * bvz), th.place_speed,
                                    th.place_horizon, th.rest_horizon),
         }
         history = None
@@ -361,7 +413,6 @@ class SlideOutEnv(gym.Env):
         g_objects = math.inf
         checked = self._checked_list
         if checked:
-            bvx, bvy, bvz = v[3:6]
             v0 = gather.obj_vel.start
             for i, dist in zip(checked, self._distances(checked)):
                 distances[i] = dist
@@ -373,7 +424,8 @@ class SlideOutEnv(gym.Env):
                     term = dist - th.collision  # = margin_no_contact
                 object_terms[i] = term
             if history is not None:
-                found = history[:, gather.h_found] > 0.5  # (substeps, N): a contact within d4 at that substep
+                # (substeps, N, 2): a contact within d4 of the robot / of the held box at that substep
+                found = history[:, gather.h_found] > 0.5
                 if found.any():
                     for i in checked:
                         hit = found[:, i]
@@ -388,13 +440,15 @@ class SlideOutEnv(gym.Env):
         return terms
 
     def _substep_contact_margin(self, history: np.ndarray, hit: np.ndarray, i: int) -> float:
-        """Worst g of object i over the substeps where the robot or the held box came within d4 of it."""
+        """Worst g of object i over the substeps where the robot or the held box came within d4 of it (``hit``:
+        (substeps, 2), which of the two contact sensors found one)."""
         th, gather = self.thresholds, self.gather
-        distance = history[hit, gather.h_dist[i]]
+        substeps = hit.any(axis=1)
+        rows = history[substeps]
+        distance = np.where(hit[substeps], rows[:, gather.h_dist[i]], np.inf).min(axis=1)
         if not self._soft_flags[i]:
             return float(np.min(distance)) - th.collision  # = margin_no_contact
         # the held box's velocity stands for the robot's: it is the fastest-moving part near the table
-        rows = history[hit]
         relative = rows[:, gather.h_box_vel] - rows[:, gather.h_obj_vel[i]]
         speed = np.sqrt(np.einsum("ij,ij->i", relative, relative))
         return min(M.margin_soft_contact(float(dd), float(sp), th.collision, th.relative_speed)
@@ -437,7 +491,7 @@ class SlideOutEnv(gym.Env):
             margins[key] = float(objects[i])
         return {"l": float(terms["l"]), "g": float(terms["g"]), "margins": margins, "event": event,
                 "object": self.names[culprit] if culprit is not None else None, "object_id": culprit,
-                "t": self._t, "names": self.names, "constraints": self.constraints,
+                "t": self._t, "names": self.names, "constraints": self.constraints, "scene_kind": self.placement.kind,
                 "is_success": event == "success"}
 
     # ------------------------------------------------------------------ rendering
@@ -486,13 +540,27 @@ def _evict_oldest(cache: dict) -> None:
         del cache[next(iter(cache))]
 
 
+class _Blocks:
+    """Consecutive named blocks of a flat array: ``take(n)`` returns the next n entries' slice."""
+
+    def __init__(self):
+        self.size = 0
+
+    def take(self, n: int) -> slice:
+        block = slice(self.size, self.size + n)
+        self.size += n
+        return block
+
+
 @dataclass(frozen=True)
 class _StateGather:
-    """Index arrays and MjData views, built once per compiled scene, that read the state in two gathers.
+    """Index arrays and MjData views, built once per compiled scene, that read the state in a few gathers.
 
-    The flat state is ``[ee_pos(3), box_vel(3), top_vel(3), obj_vel(3N), bottom_pos(3), top_pos(3),
-    obj_pos(3N), constraint one-hots(3N), footprint radii(N, with object_size)]`` (the held box is welded to the hand: its velocity is the
-    end-effector's); an observation is one gather from it.
+    The flat state is ``[ee_pos(3), ee_vel(3), box_vel(3), top_vel(3), obj_vel(3N), bottom_pos(3), top_pos(3),
+    obj_pos(3N), constraint one-hots(3N), footprint radii(N, with object_size)]``: the order ``_read_state``
+    concatenates its sources in (the site's position, two sensors, the free joints' linear velocities, the
+    bodies' positions, the episode's constants); the slices below name each block. An observation is one
+    gather from it.
 
     The judge sensors' history is read as one (substeps, columns) gather through ``history_index``; the
     ``h_*`` fields name its columns.
@@ -504,15 +572,19 @@ class _StateGather:
     xmat: np.ndarray  # flat
     sensordata: np.ndarray
     history: np.ndarray
-    box_vel: slice  # in sensordata: the held box's linear velocity
+    sensor_index: np.ndarray  # in sensordata: the end-effector's, then the held box's linear velocity
     ee_site: int
     top_up_z: int  # index in ``xmat`` of the top box's up-axis z component
     body_rows: np.ndarray
     qvel_index: np.ndarray
+    ee_pos: slice  # the blocks of the flat state
+    ee_vel: slice
+    box_vel: slice
+    top_vel: slice
+    obj_vel: slice
     bottom_pos: slice
     top_pos: slice
     obj_pos: slice
-    obj_vel: slice
     reach: list[float]  # per object: bounding radius of its geoms plus the held box's
     geom_pairs: list[list[tuple[int, int]]]  # per object: (manipulated geom, object geom) pairs to query
     index_order: np.ndarray
@@ -520,8 +592,8 @@ class _StateGather:
     slot_sources: np.ndarray  # (N, 9 or 10): flat-state indices of each slot entry (observation.py layout)
     index_sources: np.ndarray  # observation_sources(index_order), the common case, precomputed
     history_index: np.ndarray  # (substeps, columns) indices into MjData.history
-    h_found: np.ndarray  # (N,) columns: contact found between the robot's subtree and object i
-    h_dist: np.ndarray  # (N,) columns: that contact's distance
+    h_found: np.ndarray  # (N, 2) columns: contact found between object i and the robot's subtree / the held box
+    h_dist: np.ndarray  # (N, 2) columns: those contacts' distances
     h_obj_vel: np.ndarray  # (N, 3) columns: object i's linear velocity
     h_box_vel: np.ndarray  # (3,) the held box's linear velocity
     h_box_xy: np.ndarray  # (2,) the held box's position
@@ -532,14 +604,16 @@ class _StateGather:
     def build(cls, model: mujoco.MjModel, index: SceneIndex, binding, data: mujoco.MjData,
               object_size: bool = False) -> "_StateGather":
         n = len(index.object_bodies)
-        p0 = 9 + 3 * n  # start of the positions block
-        h0 = p0 + 6 + 3 * n  # start of the one-hots
-        bottom, top = slice(p0, p0 + 3), slice(p0 + 3, p0 + 6)
-        obj_pos, obj_vel = slice(p0 + 6, h0), slice(9, 9 + 3 * n)
-        robot = np.r_[0:3, 3:6, bottom, 3:6, top, 6:9].astype(np.intp)
-        r0 = h0 + 3 * n  # start of the radii (present with object_size)
-        slots = np.array([np.r_[p0 + 6 + 3 * i:p0 + 9 + 3 * i, 9 + 3 * i:12 + 3 * i, h0 + 3 * i:h0 + 3 * i + 3,
-                                r0 + i:r0 + i + (1 if object_size else 0)]
+        blocks = _Blocks()
+        ee_pos, ee_vel, box_vel, top_vel, obj_vel = (blocks.take(3), blocks.take(3), blocks.take(3), blocks.take(3),
+                                                     blocks.take(3 * n))
+        bottom_pos, top_pos, obj_pos = blocks.take(3), blocks.take(3), blocks.take(3 * n)
+        onehot, radius = blocks.take(3 * n), blocks.take(n if object_size else 0)
+        robot = np.r_[ee_pos, ee_vel, bottom_pos, box_vel, top_pos, top_vel].astype(np.intp)
+        slots = np.array([np.r_[obj_pos.start + 3 * i:obj_pos.start + 3 * i + 3,
+                                obj_vel.start + 3 * i:obj_vel.start + 3 * i + 3,
+                                onehot.start + 3 * i:onehot.start + 3 * i + 3,
+                                radius.start + i:radius.start + i + (1 if object_size else 0)]
                           for i in range(n)], dtype=np.intp).reshape(n, slot_dim(object_size))
         manipulated = [int(g) for g in index.manipulated_geoms]
         columns: list[np.ndarray] = []  # per column, its (substeps,) indices into MjData.history
@@ -556,30 +630,37 @@ class _StateGather:
 
         found, dist, object_vel = [], [], []
         for i in range(n):
-            f, dd = history_columns(f"judge_contact{i}")
-            found.append(f)
-            dist.append(dd)
+            (f_robot, d_robot), (f_box, d_box) = (history_columns(f"judge_contact{i}"),
+                                                  history_columns(f"judge_box_contact{i}"))
+            found.append((f_robot, f_box))
+            dist.append((d_robot, d_box))
             object_vel.append(history_columns(f"judge_vel{i}"))
-        box_vel = history_columns("judge_box_vel")
+        h_box_vel = history_columns("judge_box_vel")
         box_xy = history_columns("judge_box_pos")[:2]
         top_xy = history_columns("judge_top_pos")[:2]
         top_up_z = history_columns("judge_top_up")[2]
-        box_vel_adr = int(model.sensor_adr[model.sensor("judge_box_vel").id])
+
+        def sensor_values(name: str) -> np.ndarray:
+            adr = int(model.sensor_adr[model.sensor(name).id])
+            return np.arange(adr, adr + 3)
+
         return cls(
             xpos=data.xpos, qvel=data.qvel, site_xpos=data.site_xpos, xmat=data.xmat.reshape(-1),
-            sensordata=data.sensordata, history=data.history, box_vel=slice(box_vel_adr, box_vel_adr + 3),
+            sensordata=data.sensordata, history=data.history,
+            sensor_index=np.r_[sensor_values("ee_vel"), sensor_values("judge_box_vel")].astype(np.intp),
             ee_site=int(binding.ee_site), top_up_z=9 * int(index.top_box_body) + 8,
             body_rows=np.r_[index.bottom_box_body, index.top_box_body, index.object_bodies].astype(np.intp),
             qvel_index=np.r_[np.arange(index.top_box_qvel, index.top_box_qvel + 3),
                              index.object_qvel_flat].astype(np.intp),
-            bottom_pos=bottom, top_pos=top, obj_pos=obj_pos, obj_vel=obj_vel,
+            ee_pos=ee_pos, ee_vel=ee_vel, box_vel=box_vel, top_vel=top_vel, obj_vel=obj_vel,
+            bottom_pos=bottom_pos, top_pos=top_pos, obj_pos=obj_pos,
             reach=[float(r) + _MANIPULATED_REACH for r in index.object_reach],
             geom_pairs=[[(g1, int(g2)) for g1 in manipulated for g2 in geoms] for geoms in index.object_geoms],
             index_order=np.arange(n), robot_sources=robot, slot_sources=slots,
             index_sources=np.concatenate((robot, slots.ravel())),
             history_index=np.stack(columns, axis=1).astype(np.intp),
-            h_found=np.array(found, dtype=np.intp), h_dist=np.array(dist, dtype=np.intp),
-            h_obj_vel=np.array(object_vel, dtype=np.intp).reshape(n, 3), h_box_vel=np.array(box_vel, dtype=np.intp),
+            h_found=np.array(found, dtype=np.intp).reshape(n, 2), h_dist=np.array(dist, dtype=np.intp).reshape(n, 2),
+            h_obj_vel=np.array(object_vel, dtype=np.intp).reshape(n, 3), h_box_vel=np.array(h_box_vel, dtype=np.intp),
             h_box_xy=np.array(box_xy, dtype=np.intp), h_top_pos=np.array(top_xy, dtype=np.intp), h_top_up_z=top_up_z)
 
     def observation_sources(self, ids: np.ndarray) -> np.ndarray:

@@ -22,12 +22,14 @@ import numpy as np
 from safemanip.scene.catalog import CatalogObject, load_catalog
 from safemanip.scene.config import GEOMETRY, TaskGeometry
 from safemanip.scene.embodiment import Embodiment, make_embodiment
-from safemanip.scene.panda import COLLIDE_OBJECTS, COLLIDE_ROBOT, COLLIDE_TABLE
+from safemanip.scene.grasp import (COLLIDE_HULL, COLLIDE_OBJECTS, COLLIDE_ROBOT, COLLIDE_STACK, COLLIDE_TABLE,
+                                   add_box_mesh, add_held_box)
 
 TIMESTEP = 0.002
 CONTROL_DT = 0.05  # 20 Hz control
 SUBSTEPS = int(round(CONTROL_DT / TIMESTEP))
-BOX_FRICTION = 0.3
+BOX_FRICTION = 0.2
+IMPRATIO = 10.0
 TABLE_FRICTION = 0.3
 WHITE_BOX = (0.95, 0.95, 0.92, 1.0)
 BLUE_BOX = (0.15, 0.30, 0.80, 1.0)
@@ -51,7 +53,9 @@ def _add_arena(spec: mujoco.MjSpec, geo: TaskGeometry) -> None:
     tx, ty = geo.table_half_extents
     spec.option.timestep = TIMESTEP
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
-    spec.option.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
+    # elliptic friction cones, stiffened (impratio): with pyramidal ones the pads let the box slip and tip over
+    spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+    spec.option.impratio = IMPRATIO
     spec.visual.quality.shadowsize = 0
     spec.visual.global_.offwidth = 1280
     spec.visual.global_.offheight = 960
@@ -65,7 +69,7 @@ def _add_arena(spec: mujoco.MjSpec, geo: TaskGeometry) -> None:
     # table friction wins over every object's thanks to its higher priority
     world.add_geom(name="table", type=mujoco.mjtGeom.mjGEOM_BOX, size=[tx, ty, 0.025], pos=[0, 0, -0.025],
                    rgba=[0.55, 0.42, 0.30, 1], friction=[TABLE_FRICTION, 0.005, 0.0001], priority=1,
-                   contype=COLLIDE_TABLE, conaffinity=COLLIDE_TABLE | COLLIDE_ROBOT)
+                   contype=COLLIDE_TABLE, conaffinity=COLLIDE_OBJECTS | COLLIDE_ROBOT | COLLIDE_STACK)
     for sx in (-1, 1):
         for sy in (-1, 1):
             world.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.025, 0.025, 0.385],
@@ -84,9 +88,13 @@ def _add_top_box(spec: mujoco.MjSpec, geo: TaskGeometry) -> None:
     sx, sy = geo.stack_xy
     top = spec.worldbody.add_body(name="box_top", pos=[sx, sy, 3 * hz + 0.0005])
     top.add_freejoint(name="box_top")
+    # a primitive box on the bottom box and the table (multi-point resting contacts), a mesh hull for the rest
     top.add_geom(name="box_top", type=mujoco.mjtGeom.mjGEOM_BOX, size=[hx, hy, hz], mass=geo.box_mass,
                  rgba=BLUE_BOX, friction=[BOX_FRICTION, 0.005, 0.0001],
-                 contype=COLLIDE_TABLE | COLLIDE_OBJECTS, conaffinity=COLLIDE_TABLE | COLLIDE_OBJECTS | COLLIDE_ROBOT)
+                 contype=COLLIDE_STACK, conaffinity=COLLIDE_TABLE | COLLIDE_STACK)
+    top.add_geom(name="box_top_hull", type=mujoco.mjtGeom.mjGEOM_MESH, meshname=add_box_mesh(spec, "box_top_hull", (hx, hy, hz)),
+                 mass=0.0, rgba=[0, 0, 0, 0], group=3, friction=[BOX_FRICTION, 0.005, 0.0001],
+                 contype=COLLIDE_HULL, conaffinity=COLLIDE_OBJECTS | COLLIDE_ROBOT)
 
 
 def _add_object(spec: mujoco.MjSpec, index: int, obj: CatalogObject) -> None:
@@ -101,7 +109,7 @@ def _add_part(body, name, part, obj: CatalogObject, total_volume: float):
     geom = body.add_geom(name=name, type=_GEOM_TYPES[part.type], size=list(part.size) + [0] * (3 - len(part.size)),
                          pos=part.pos, mass=obj.mass * _part_volume(part) / total_volume, rgba=obj.rgba,
                          friction=[0.5, 0.005, 0.0001],
-                         contype=COLLIDE_TABLE | COLLIDE_OBJECTS, conaffinity=COLLIDE_TABLE | COLLIDE_OBJECTS | COLLIDE_ROBOT)
+                         contype=COLLIDE_OBJECTS, conaffinity=COLLIDE_OBJECTS | COLLIDE_ROBOT | COLLIDE_HULL)
     if any(part.euler):
         quat = np.zeros(4)
         mujoco.mju_euler2Quat(quat, np.asarray(part.euler, dtype=float), "xyz")
@@ -116,9 +124,12 @@ def _add_judge_sensors(spec: mujoco.MjSpec, embodiment: Embodiment, n_objects: i
 
     body, xbody = mujoco.mjtObj.mjOBJ_BODY, mujoco.mjtObj.mjOBJ_XBODY
     for i in range(n_objects):
-        # nearest contact between anything in the robot's subtree (links, hand, held box) and object i
-        sensor(f"judge_contact{i}", mujoco.mjtSensor.mjSENS_CONTACT, xbody, embodiment.root_body_name,
-               reftype=body, refname=f"obj{i}", intprm=[1 | 8, 1, 1])  # data: found|dist; reduce: mindist; num 1
+        # nearest contact between object i and anything in the robot's subtree (links, hand, fingers, pads), and
+        # between it and the held box
+        for name, objtype, objname in ((f"judge_contact{i}", xbody, embodiment.root_body_name),
+                                       (f"judge_box_contact{i}", body, "box_bottom")):
+            sensor(name, mujoco.mjtSensor.mjSENS_CONTACT, objtype, objname, reftype=body, refname=f"obj{i}",
+                   intprm=[1 | 8, 1, 1])  # data: found|dist; reduce: mindist; num 1
         sensor(f"judge_vel{i}", mujoco.mjtSensor.mjSENS_FRAMELINVEL, xbody, f"obj{i}")
     sensor("judge_box_vel", mujoco.mjtSensor.mjSENS_FRAMELINVEL, xbody, "box_bottom")
     sensor("judge_box_pos", mujoco.mjtSensor.mjSENS_FRAMEPOS, xbody, "box_bottom")
@@ -140,8 +151,12 @@ def _scene_base(embodiment: Embodiment, geometry: TaskGeometry) -> mujoco.MjSpec
         spec = mujoco.MjSpec()
         spec.modelname = "slide_out"
         _add_arena(spec, geometry)
-        embodiment.attach(spec, geometry, WHITE_BOX, BOX_FRICTION, CONTROL_DT)
+        add_held_box(spec, geometry, WHITE_BOX, BOX_FRICTION, embodiment.gap)
+        embodiment.attach(spec, geometry)
         _add_top_box(spec, geometry)
+        # the end-effector's velocity (the box's is the judge's ``judge_box_vel``): read once per control step
+        spec.add_sensor(name="ee_vel", type=mujoco.mjtSensor.mjSENS_FRAMELINVEL, objtype=mujoco.mjtObj.mjOBJ_SITE,
+                        objname=embodiment.ee_site_name)
         _BASES[key] = spec
     return _BASES[key]
 
@@ -199,6 +214,8 @@ class SceneIndex:
     top_box_qpos: int
     top_box_qvel: int
     bottom_box_body: int
+    bottom_box_qpos: int  # start of the held box's free joint in qpos (x, y, z, quaternion)
+    bottom_box_qvel: int
     manipulated_geoms: np.ndarray  # geoms whose exact distance to the clutter is measured (held box, hand)
     object_bodies: np.ndarray  # (N,)
     object_qpos: np.ndarray  # (N,) start of each free joint's qpos
@@ -218,6 +235,8 @@ class SceneIndex:
             top_box_qpos=int(top.qposadr[0]),
             top_box_qvel=int(top.dofadr[0]),
             bottom_box_body=model.body("box_bottom").id,
+            bottom_box_qpos=int(model.joint("box_bottom").qposadr[0]),
+            bottom_box_qvel=int(model.joint("box_bottom").dofadr[0]),
             manipulated_geoms=np.array([model.geom(g).id for g in embodiment.distance_geom_names]),
             object_bodies=bodies,
             object_qpos=np.array([model.joint(f"obj{i}").qposadr[0] for i in range(n_objects)], dtype=int),

@@ -35,6 +35,9 @@ class TaskGeometry:
     goal_radius: float = 0.08
     path_start_xy: tuple[float, float] = (-0.15, 0.0)
     """Where the bottom box is once it has been pulled out; clutter 'near the path' lies between here and the goal."""
+    grasp_inset: float = 0.03
+    """The pads press this far in from the bottom box's right edge [m], in the middle of the 7 cm lip: the further
+    back from the edge the box would tip over, the more their push holds it flat while they drag it."""
     workspace_inset: float = 0.03
     """The manipulated box's centre must stay this far inside the table edge (else failure:oob)."""
 
@@ -44,9 +47,9 @@ class TaskGeometry:
 
     @property
     def grasp_xy(self) -> tuple[float, float]:
-        """Where the fingertips rest: on the lip, 1.5 cm in from the bottom box's right edge."""
+        """Where the pads press: on the lip, ``grasp_inset`` in from the bottom box's right edge."""
         bx, by = self.bottom_xy
-        return (bx + self.box_half_extents[0] - 0.015, by)
+        return (bx + self.box_half_extents[0] - self.grasp_inset, by)
 
 
 GEOMETRY = TaskGeometry()
@@ -89,8 +92,13 @@ class SceneConfig:
     anywhere around the straight path (the layout of results before 2026-12-02), which walls off most scenes
     with N >= 3 for a Panda."""
     layout: str = "route"
-    """How tightly the clutter hems in the route (``placement.LAYOUTS``): 'route' (the default) or 'narrow' (a
-    channel: every object beside the route, on both sides, 1 cm to spare)."""
+    """How tightly the clutter hems in the route and which kinds of scene the episodes mix (``placement.LAYOUTS``):
+    'route' (the default; open scenes), 'narrow' (a channel: every object beside the route, on both sides, 1 cm to
+    spare), 'gate' (half the scenes semantic-only) or 'exit' (half with a fragile object past the pull lane)."""
+    gate_share: float | None = None
+    """Share of the episodes whose scene is a gate (semantic-only: ``placement.SCENE_KINDS``); None: the layout's."""
+    exit_share: float | None = None
+    """Share of the episodes whose scene is an exit probe; None: the layout's. The rest are open scenes."""
     extra: dict = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self):
@@ -104,6 +112,17 @@ class SceneConfig:
 
         if self.layout not in LAYOUTS:
             raise SceneConfigError(f"layout must be one of {', '.join(LAYOUTS)}, got {self.layout!r}")
+        for name in ("gate_share", "exit_share"):
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, numbers.Real)
+                                      or not 0.0 <= value <= 1.0):
+                raise SceneConfigError(f"{name} must be a share from 0 to 1 (or None: the layout's own), got {value!r}")
+        gate, exit_ = self.kind_shares
+        if gate + exit_ > 1.0 + 1e-9:
+            raise SceneConfigError(f"gate_share + exit_share must be at most 1 (the rest are open scenes), got "
+                                   f"{gate} + {exit_}")
+        if (gate or exit_) and not self.clear_route:
+            raise SceneConfigError("gate and exit scenes are placed around a kept-clear route: drop clear_route=False")
         if not self.clear_route and self.layout != "route":
             raise SceneConfigError(f"layout {self.layout!r} keeps a route clear: drop clear_route=False (the "
                                    f"straight-corridor layout) or the layout")
@@ -131,6 +150,15 @@ class SceneConfig:
                 want = self.classes.count(c)
                 if want > have:
                     raise SceneConfigError(f"asked for {want} {c} objects but the catalog has only {have}")
+
+    @property
+    def kind_shares(self) -> tuple[float, float]:
+        """(gate, exit) shares of the episodes: the config's, or its layout's where it says None."""
+        from safemanip.scene.placement import LAYOUTS
+
+        layout = LAYOUTS[self.layout]
+        return (float(layout.gate_share if self.gate_share is None else self.gate_share),
+                float(layout.exit_share if self.exit_share is None else self.exit_share))
 
     @property
     def near_fraction(self) -> float:

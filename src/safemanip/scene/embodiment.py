@@ -8,7 +8,8 @@ the same observation and action spaces. Two exist, picked by name (``EMBODIMENTS
 * ``hand``: an idealised ablation, the Panda hand as a gravity-compensated body on three world-aligned
   slide joints. The env applies the same Cartesian speed and acceleration limits to both.
 
-In both, the grasped (bottom) cereal box is a child body of the hand: a weld, i.e. a perfect grasp.
+Both grasp the same way (``scene/grasp.py``): spring-loaded fingertip pads press on the bottom box's lip
+and drag it by friction; the box itself is a free body that the scene builder adds.
 """
 
 from __future__ import annotations
@@ -20,14 +21,16 @@ import mujoco
 import numpy as np
 
 from safemanip.scene.config import TaskGeometry
-from safemanip.scene.panda import COLLIDE_OBJECTS, COLLIDE_ROBOT, COLLIDE_TABLE, PandaArm
+from safemanip.scene.grasp import COLLIDE_ROBOT, PAD_NOMINAL_QPOS, PAD_PRESS, PAD_RADIUS, add_pad, boxes_to_meshes
+from safemanip.scene.panda import FINGER_OPENING, PandaArm
 
 
 class Embodiment(Protocol):
     """What the scene builder and the env need of a robot.
 
-    ``attach`` builds the robot and the held box (a body named ``box_bottom``) into the scene's spec;
-    ``bind`` resolves ids once per compiled model; ``reset`` puts it at its home configuration;
+    ``attach`` builds the robot into the scene's spec, its pads resting on the lip of the held box (a free body
+    named ``box_bottom`` that the builder adds); ``bind`` resolves ids once per compiled model; ``reset`` puts it
+    at its home configuration, the pads pressed in by ``PAD_PRESS``;
     ``command_velocity`` makes the end-effector track a world-frame velocity over the next control step.
     Everything in the subtree of ``root_body_name`` is "manipulated": it counts in g_hard and g_soft.
     """
@@ -40,7 +43,7 @@ class Embodiment(Protocol):
     hand); contacts of every other robot geom are caught by the per-substep contact check."""
     cache_key: tuple
 
-    def attach(self, spec: mujoco.MjSpec, geo: TaskGeometry, box_rgba, box_friction: float, dt: float) -> None: ...
+    def attach(self, spec: mujoco.MjSpec, geo: TaskGeometry) -> None: ...
     def bind(self, model: mujoco.MjModel): ...
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, binding) -> None: ...
     def command_velocity(self, model, data, binding, velocity: np.ndarray, dt: float) -> None: ...
@@ -55,6 +58,7 @@ class HandBinding:
     actuator_ids: slice  # the three velocity servos (contiguous)
     act_adr: slice  # their set-points
     ee_site: int
+    pad_qpos: np.ndarray  # (2,) the pads' slides
 
 
 class CartesianHand:
@@ -79,11 +83,10 @@ class CartesianHand:
     def cache_key(self) -> tuple:
         return (self.name, self.gap)
 
-    def attach(self, spec: mujoco.MjSpec, geo: TaskGeometry, box_rgba, box_friction: float, dt: float) -> None:
+    def attach(self, spec: mujoco.MjSpec, geo: TaskGeometry) -> None:
         hx, hy, hz = geo.box_half_extents
-        bx, by = geo.bottom_xy
         gx, gy = geo.grasp_xy
-        grasp = np.array([gx, gy, hz])  # on the lip, where the Panda's fingers rest
+        grasp = np.array([gx, gy, 2 * hz])  # on top of the lip, where the Panda's pads press
         hand = spec.worldbody.add_body(name="hand", pos=grasp, gravcomp=1.0)
         tx, ty = geo.table_half_extents
         ranges = {"x": (-tx - gx, tx - gx), "y": (-ty - gy, ty - gy), "z": self.lift_range}
@@ -99,19 +102,20 @@ class CartesianHand:
             servo.gainprm[0] = self.servo_gain
             servo.biasprm[:3] = [0.0, 0.0, -self.servo_gain]
             servo.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
-        # palm above the box edge and two fingers pinching it; palm collides with clutter, not the table
-        hand.add_geom(name="hand_palm", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.03, 0.10, 0.025],
-                      pos=[0, 0, hz + 0.09], mass=self.mass, rgba=[0.9, 0.9, 0.9, 1],
-                      contype=COLLIDE_ROBOT, conaffinity=0, gap=self.gap)
+        # palm above the lip, two fingers reaching down to it, a pad at each fingertip
+        palm = hand.add_geom(name="hand_palm", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.03, 0.10, 0.025],
+                             pos=[0, 0, 0.09], mass=self.mass, rgba=[0.9, 0.9, 0.9, 1],
+                             contype=COLLIDE_ROBOT, conaffinity=0, gap=self.gap)
+        boxes_to_meshes(spec, [palm])
+        spread = 0.0075 + FINGER_OPENING  # the Panda's pad offset across the hand
         for side in (-1, 1):
             hand.add_geom(name=f"hand_finger_{'lr'[side > 0]}", type=mujoco.mjtGeom.mjGEOM_BOX,
-                          size=[0.02, 0.01, 0.03], pos=[0, side * 0.012, hz + 0.035],
+                          size=[0.01, 0.008, 0.03], pos=[0, side * spread, 0.04],
                           rgba=[0.3, 0.3, 0.3, 1], contype=0, conaffinity=0, mass=0)
+            # the pad's +z points down; fully out, its lowest point is PAD_PRESS below the lip's top
+            add_pad(hand, f"hand_pad_{'lr'[side > 0]}", pos=[0, side * spread, PAD_RADIUS - PAD_PRESS],
+                    quat=[0.0, 1.0, 0.0, 0.0], gap=self.gap)
         hand.add_site(name="ee", pos=[0, 0, 0], size=[0.01, 0, 0])
-        box = hand.add_body(name="box_bottom", pos=[bx - gx, by - gy, 0])
-        box.add_geom(name="box_bottom", type=mujoco.mjtGeom.mjGEOM_BOX, size=[hx, hy, hz],
-                     mass=geo.box_mass, rgba=box_rgba, friction=[box_friction, 0.005, 0.0001], gap=self.gap,
-                     contype=COLLIDE_TABLE | COLLIDE_OBJECTS, conaffinity=COLLIDE_TABLE | COLLIDE_OBJECTS)
 
     def bind(self, model: mujoco.MjModel) -> HandBinding:
         joints = [model.joint(f"hand_{a}") for a in "xyz"]
@@ -122,10 +126,12 @@ class CartesianHand:
         return HandBinding(qpos_adr=np.array([j.qposadr[0] for j in joints]),
                            qvel_adr=np.array([j.dofadr[0] for j in joints]),
                            actuator_ids=slice(servos[0], servos[0] + 3), act_adr=slice(acts[0], acts[0] + 3),
-                           ee_site=model.site("ee").id)
+                           ee_site=model.site("ee").id,
+                           pad_qpos=np.array([model.joint(f"hand_pad_{s}").qposadr[0] for s in "lr"]))
 
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, binding: HandBinding) -> None:
-        """Joint zero is the grasp pose: nothing to do after ``mj_resetData``."""
+        """Joint zero is the grasp pose; the pads start pressed in, just touching the lip."""
+        data.qpos[binding.pad_qpos] = PAD_NOMINAL_QPOS
 
     @staticmethod
     def command_velocity(model, data, binding: HandBinding, velocity: np.ndarray, dt: float) -> None:

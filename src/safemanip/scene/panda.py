@@ -10,17 +10,20 @@ correct what that model gets wrong for a torque-controlled Panda:
 * gravity is compensated, as the Panda's own controller does (``gravcomp`` on every link);
 * joints 6 and 7 get their zeros back where Franka defines them (the link frames carried extra turns of
   1.57 and 0.785 rad), and every joint range is Franka's published one (joint 4's and 6's differed);
-* the fingers are closed and fixed (the grasp is a weld, see below), so they have no joints.
+* the fingers are opened to 7 cm and fixed (no finger joints), each with a spring-loaded pad at its tip
+  (``scene/grasp.py``), and the colliding box geoms become convex meshes (MuJoCo's box-box collider misses
+  some near pairs).
 
 Control: once per 20 Hz step, damped-least-squares differential IK turns the commanded end-effector
 velocity (and a correction that holds the hand's orientation, and a null-space pull to a comfortable
 posture) into joint velocities within the Panda's joint position and speed limits. Each joint has one
 velocity servo whose set-point is an integrator state: the controller sets its rate so that the set-point
 ramps linearly from the last command to the new one over the step. MuJoCo runs the 25 substeps with no
-Python in between. Torques are limited to the Panda's 87 / 12 Nm.
+Python in between. Torques are limited to the Panda's 87 / 12 Nm. Each step's change of joint velocity is
+scaled down so that no joint accelerates faster than ``ACCEL_MARGIN`` of Franka's limit.
 
-The grasp: the bottom cereal box is a child body of the hand (a weld), with the closed fingertips
-resting on the 4 cm lip of the box that sticks out to the right from under the top box.
+The grasp (``scene/grasp.py``): the fingertip pads press on the lip of the bottom box that sticks out to
+the right from under the top box, and drag it by friction; the box is a free body.
 """
 
 from __future__ import annotations
@@ -34,12 +37,11 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from safemanip.control.diff_ik import dls_joint_velocity, limit_joint_velocity, orientation_error
+from safemanip.control.diff_ik import (dls_joint_velocity, limit_joint_acceleration, limit_joint_velocity,
+                                       orientation_error)
 from safemanip.scene.config import GEOMETRY, TaskGeometry
-
-COLLIDE_TABLE = 1  # contype/conaffinity bit of the table and everything that rests on it
-COLLIDE_OBJECTS = 2  # bit shared by the boxes and the clutter
-COLLIDE_ROBOT = 4  # robot links: they hit the table and the clutter, never themselves or the held box
+from safemanip.scene.grasp import (COLLIDE_ROBOT, PAD_CLEARANCE, PAD_NOMINAL_QPOS, PAD_PRESS, PAD_RADIUS, add_pad,
+                                   boxes_to_meshes)
 
 _ASSET_SUBDIR = ("envs", "assets", "kitchen_franka", "franka_assets")
 JOINTS = tuple(f"robot:panda0_joint{i}" for i in range(1, 8))
@@ -50,6 +52,8 @@ FRANKA_JOINT_SPEEDS = np.array([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])
 """Franka's published joint velocity limits [rad/s]."""
 FRANKA_JOINT_ACCELS = np.array([15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0])
 """Franka's published joint acceleration limits [rad/s^2]."""
+FRANKA_JOINT_JERKS = np.array([7500.0, 3750.0, 5000.0, 6250.0, 7500.0, 10000.0, 10000.0])
+"""Franka's published joint jerk limits [rad/s^3]."""
 FRANKA_JOINT_TORQUES = np.array([87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0])
 """Franka's published joint torque limits [Nm]."""
 READY_POSTURE = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
@@ -67,8 +71,17 @@ LIMIT_MARGIN = 0.05
 SPEED_MARGIN = 0.85
 """Joint velocities are commanded up to this share of Franka's limits: the servos track with small
 overshoots (inertial coupling between joints, contacts), and the achieved speed must stay within the limit."""
-FINGERTIP_BELOW_SITE = 0.043
-"""The fingertips are this far below gymnasium-robotics' ``end_effector`` site (between the fingers)."""
+ACCEL_MARGIN = 0.7
+"""Joint accelerations are commanded up to this share of Franka's limits: the servos lag the ramped set-points by
+a few ms and the joints pull on each other, which lets the achieved change over a 50 ms window overshoot the
+commanded one by up to ~25 % (measured: 0.99 of joint 2's limit with 0.8)."""
+FINGER_OPENING = 0.035
+"""Each finger is opened this far from closed [m] (the Panda opens 0.04): the pads stand 8.5 cm apart across
+the lip, which lets them resist the box turning."""
+FINGERTIP_Z = 0.0945
+"""Where the fingertip ends along the finger's own z axis [m] in gymnasium-robotics' finger frame (the tip
+capsule's centre, 0.0875, plus its 7 mm radius): the pads sit there."""
+PANDA_PADS = ("panda/pad_left", "panda/pad_right")
 
 
 class MissingRobotModel(RuntimeError):
@@ -135,6 +148,16 @@ def load_panda_spec(visual: bool = True, gap: float = 0.0) -> mujoco.MjSpec:
         if not visual:
             geom.group = 0
             geom.rgba = [0.92, 0.92, 0.9, 1.0]
+    boxes_to_meshes(spec, [g for g in spec.geoms if g.contype])
+    for finger, side, pad in (("panda0_leftfinger", 1.0, "pad_left"), ("panda0_rightfinger", -1.0, "pad_right")):
+        body = spec.body(finger)
+        # open the finger along its own y axis (the closing direction), as seen in the hand's frame
+        rotation = np.zeros(9)
+        mujoco.mju_quat2Mat(rotation, np.asarray(body.quat, dtype=float))
+        body.pos = np.asarray(body.pos, dtype=float) + side * FINGER_OPENING * rotation.reshape(3, 3)[:, 1]
+        tip_y = side * 0.0075  # the tip capsules' offset across the finger
+        # placed so that, pushed in by PAD_PRESS, the pad's lowest point is PAD_CLEARANCE past the fingertip
+        add_pad(body, pad, pos=[0.0, tip_y, FINGERTIP_Z + PAD_CLEARANCE + PAD_PRESS - PAD_RADIUS], gap=gap)
     if not visual:
         for mesh in list(spec.meshes):
             if mesh.name.endswith("_viz"):
@@ -152,7 +175,7 @@ class PandaBinding:
     act_adr: slice  # their set-points
     ee_site: int
     site_body: int
-    box_body: int
+    pad_qpos: np.ndarray  # (2,) the pads' slides
     root_body: int
     home_qpos: np.ndarray
     target_rotation: np.ndarray  # (3, 3) hand orientation to hold
@@ -187,8 +210,8 @@ class PandaArm:
         return (self.name, self.visual, self.gap)
 
     # ------------------------------------------------------------------ building
-    def attach(self, spec: mujoco.MjSpec, geo: TaskGeometry, box_rgba, box_friction: float, dt: float) -> None:
-        _, site_pose = home_configuration(geo)
+    def attach(self, spec: mujoco.MjSpec, geo: TaskGeometry) -> None:
+        """The arm on its pedestal, its pads resting on the box lip in the home configuration, and its servos."""
         robot = load_panda_spec(self.visual, self.gap)
         base = spec.worldbody.add_frame(pos=[BASE_XY[0], BASE_XY[1], BASE_Z],
                                         quat=[math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)])  # face +y
@@ -196,18 +219,6 @@ class PandaArm:
         spec.worldbody.add_geom(name="pedestal", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[0.11, 0.4],
                                 pos=[BASE_XY[0], BASE_XY[1], BASE_Z - 0.4], rgba=[0.25, 0.25, 0.28, 1],
                                 contype=0, conaffinity=0)
-        hx, hy, hz = geo.box_half_extents
-        # the box, welded to the last link where the home configuration puts it
-        link7_pos, link7_rot = site_pose["link7"]
-        bx, by = geo.bottom_xy
-        box_world = np.array([bx, by, hz])
-        box = spec.body("panda/panda0_link7").add_body(name="box_bottom", pos=link7_rot.T @ (box_world - link7_pos))
-        quat = np.zeros(4)
-        mujoco.mju_mat2Quat(quat, link7_rot.T.reshape(-1).copy())
-        box.quat = quat
-        box.add_geom(name="box_bottom", type=mujoco.mjtGeom.mjGEOM_BOX, size=[hx, hy, hz], mass=geo.box_mass,
-                     rgba=box_rgba, friction=[box_friction, 0.005, 0.0001], gap=self.gap,
-                     contype=COLLIDE_TABLE | COLLIDE_OBJECTS, conaffinity=COLLIDE_TABLE | COLLIDE_OBJECTS)
         for i, joint in enumerate(JOINTS):
             servo = spec.add_actuator(name=f"servo{i + 1}", target=f"panda/{joint}", trntype=mujoco.mjtTrn.mjTRN_JOINT)
             servo.dyntype = mujoco.mjtDyn.mjDYN_INTEGRATOR  # set-point = integral of ctrl: a ramp within the step
@@ -232,7 +243,7 @@ class PandaArm:
             qpos_adr=np.array([j.qposadr[0] for j in joints]), dof_adr=dofs,
             actuator_ids=slice(servos[0], servos[0] + 7), act_adr=slice(acts[0], acts[0] + 7),
             ee_site=model.site(self.ee_site_name).id, site_body=int(model.site(self.ee_site_name).bodyid[0]),
-            box_body=model.body("box_bottom").id,
+            pad_qpos=np.array([model.joint(p).qposadr[0] for p in PANDA_PADS]),
             root_body=model.body(self.root_body_name).id, home_qpos=home, target_rotation=pose["site"][1],
             jacp=np.zeros((3, nv)), jacr=np.zeros((3, nv)), jac6=np.zeros((6, 7)), twist=np.zeros(6),
             qpos=_as_slice(np.array([j.qposadr[0] for j in joints])), dofs=_as_slice(dofs))
@@ -240,6 +251,7 @@ class PandaArm:
     # ------------------------------------------------------------------ episode
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, binding: PandaBinding) -> None:
         data.qpos[binding.qpos_adr] = binding.home_qpos
+        data.qpos[binding.pad_qpos] = PAD_NOMINAL_QPOS  # pressed in, just touching the lip: no start-up jolt
         data.qvel[binding.dof_adr] = 0.0
         data.act[binding.act_adr] = 0.0
 
@@ -262,16 +274,19 @@ class PandaArm:
         qdot = dls_joint_velocity(jac, twist, self.ik_damping, self.posture_gain * (binding.home_qpos - q))
         unlimited = float(qdot @ qdot)
         # brake at half Franka's joint accelerations: the servos lag a little behind their set-points
-        qdot = limit_joint_velocity(qdot, q, _LOWER, _UPPER, _SPEED_CAP, _BRAKING)
+        qdot = limit_joint_velocity(qdot, q, _LOWER, _UPPER, _SPEED_CAP, _BRAKING, dt)
+        previous = data.act[binding.act_adr]  # the set-points the last ramp ended at
+        qdot = limit_joint_acceleration(qdot, previous, _ACCEL_CAP * dt)
         binding.speed_scale = math.sqrt(float(qdot @ qdot) / unlimited) if unlimited > 0.0 else 1.0
         # ramp the servo set-points linearly from where they are to qdot over the step
-        data.ctrl[binding.actuator_ids] = (qdot - data.act[binding.act_adr]) / dt
+        data.ctrl[binding.actuator_ids] = (qdot - previous) / dt
 
 
 _LOWER = FRANKA_JOINT_RANGES[:, 0] + LIMIT_MARGIN
 _UPPER = FRANKA_JOINT_RANGES[:, 1] - LIMIT_MARGIN
 _SPEED_CAP = SPEED_MARGIN * FRANKA_JOINT_SPEEDS
 _BRAKING = 0.5 * FRANKA_JOINT_ACCELS
+_ACCEL_CAP = ACCEL_MARGIN * FRANKA_JOINT_ACCELS
 
 
 def _as_slice(ids: np.ndarray):
@@ -323,6 +338,17 @@ class _BareArm:
         return data.qpos[self.qadr].copy(), float(np.linalg.norm(err[:3])), float(np.linalg.norm(err[3:]))
 
 
+@lru_cache(maxsize=4)
+def press_site_height(geo: TaskGeometry) -> float:
+    """Height of the ``end_effector`` site when the pads press on the box lip, each pushed in by PAD_PRESS.
+
+    The site, the fingers' bases and their z axes all lie along link 7's z axis, which points down here."""
+    spec = load_panda_spec(visual=False)
+    finger_base = float(spec.body("panda0_leftfinger").pos[2])
+    site = float(spec.site("end_effector").pos[2])
+    return 2 * geo.box_half_extents[2] + finger_base + FINGERTIP_Z + PAD_CLEARANCE - site
+
+
 def _facing(target_xy) -> np.ndarray:
     """The ready posture turned to face ``target_xy`` from the base, the hand's yaw kept."""
     q = READY_POSTURE.copy()
@@ -333,7 +359,7 @@ def _facing(target_xy) -> np.ndarray:
 
 @lru_cache(maxsize=4)
 def home_configuration(geo: TaskGeometry) -> tuple[np.ndarray, dict]:
-    """Joint angles that put the closed fingertips on the box lip with the hand pointing down.
+    """Joint angles that put the pads on the box lip, pressed in by PAD_PRESS, with the hand pointing down.
 
     Solved once by DLS IK on the bare arm from the ready posture; returns the angles and the world poses
     of the ``end_effector`` site and of link 7 in that configuration.
@@ -341,8 +367,7 @@ def home_configuration(geo: TaskGeometry) -> tuple[np.ndarray, dict]:
     arm = _BareArm()
     gx, gy = geo.grasp_xy
     start = _facing((gx, gy))
-    q, position_error, rotation_error = arm.solve(np.array([gx, gy, 2 * geo.box_half_extents[2] + FINGERTIP_BELOW_SITE]),
-                                                  start, start)
+    q, position_error, rotation_error = arm.solve(np.array([gx, gy, press_site_height(geo)]), start, start)
     residual = math.hypot(position_error, rotation_error)
     if residual > 1e-4:
         raise RuntimeError(f"no home configuration reaches the box grasp (residual {residual:.2e} m): "
@@ -377,7 +402,7 @@ def holding_reach(geo: TaskGeometry) -> tuple[np.ndarray, np.ndarray, np.ndarray
     arm = _BareArm()
     tx, ty = geo.table_half_extents
     lip = geo.grasp_xy[0] - geo.bottom_xy[0], geo.grasp_xy[1] - geo.bottom_xy[1]  # fingertips from the box centre
-    z = 2 * geo.box_half_extents[2] + FINGERTIP_BELOW_SITE
+    z = press_site_height(geo)
     xs = np.arange(-tx, tx + 1e-9, REACH_GRID)
     ys = np.arange(-ty, ty + 1e-9, REACH_GRID)
     mask = np.zeros((len(xs), len(ys)), dtype=bool)

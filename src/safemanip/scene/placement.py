@@ -43,10 +43,50 @@ INNER_SHARE = 0.9
 controller that heads straight for the goal hit something, so the bend has to be followed."""
 
 
+SCENE_KINDS = ("open", "gate", "exit")
+"""What an episode's scene asks of a policy (recorded per episode as ``info["scene_kind"]``):
+
+* ``open``: the route is clear; avoiding every object is enough (every scene of ``route`` and ``narrow``).
+* ``gate``: semantic-only. One or two objects that may be touched (not ``no_contact``) stand on the route and
+  fragile ones beside them, so that the scene is closed to a policy that avoids everything and open to one that
+  avoids only the fragile objects (the env checks both with the planner's free-space map).
+* ``exit``: one fragile object stands 0-8 cm past the end of the pull lane, so the fast pull that leaves the top
+  box in place has to stop or turn right after the box comes out (the env checks the scene open).
+"""
+
+
+@dataclass(frozen=True)
+class GateLayout:
+    """Where a gate scene's objects stand (``SCENE_KINDS``)."""
+
+    blockers: tuple[int, int] = (1, 2)
+    """How many touchable objects stand on the route (drawn uniformly, at most as many as the scene has)."""
+    along: tuple[float, float] = (0.3, 0.7)
+    """Where along the route they stand (fractions of its length)."""
+    off_centre: float = 0.04
+    """How far off the route's centre line they may stand [m]."""
+    flank_gap: float = 0.06
+    """The fragile objects stand at most this far outside the route's band [m], beside the blockers ..."""
+    flank_span: float = 0.12
+    """... and at most this far along the route from a blocker [m]."""
+
+
+@dataclass(frozen=True)
+class ExitLayout:
+    """Where an exit scene's probe stands (``SCENE_KINDS``)."""
+
+    gap: tuple[float, float] = (0.10,0.20)
+    """How far past the end of the pull lane its near edge stands [m], beyond d4: past the held box's right edge
+    at the moment it has come out from under the top box (``TaskGeometry.path_start_xy``)."""
+    across: float = 0.5
+    """How far from the lane's centre line it stands, as a share of the box's half depth (13.5 cm)."""
+
+
 @dataclass(frozen=True)
 class RouteLayout:
-    """How tightly the clutter hems in the kept-clear route. Every layout leaves the route open; they differ in
-    how much room it has and how close the objects stand."""
+    """How tightly the clutter hems in the kept-clear route, and which kinds of scene a layout mixes. The open
+    scenes of every layout leave the route open; they differ in how much room it has and how close the objects
+    stand."""
 
     clearance: float
     """Room around the held box and hand along the route [m] (``Route.half_extents``)."""
@@ -56,17 +96,29 @@ class RouteLayout:
     """Share of near-path objects inside the bend (the rest stand on its outside)."""
     near_fraction: float
     """Share of the clutter beside the route when the scene config does not say (``near_path_fraction``)."""
+    gate_share: float = 0.0
+    """Share of the episodes whose scene is a gate (``SCENE_KINDS``), when the scene config does not say."""
+    exit_share: float = 0.0
+    """Share of the episodes whose scene is an exit probe, when the scene config does not say; the rest are open."""
+    gate: GateLayout = GateLayout()
+    exit: ExitLayout = ExitLayout()
 
 
+_ROUTE = dict(clearance=ROUTE_CLEARANCE, near_gap=NEAR_ROUTE_GAP, inner_share=INNER_SHARE, near_fraction=0.5)
 LAYOUTS = {
     # half the clutter just beside the route, nearly all of it inside the bend: cutting the corner collides
-    "route": RouteLayout(clearance=ROUTE_CLEARANCE, near_gap=NEAR_ROUTE_GAP, inner_share=INNER_SHARE,
-                         near_fraction=0.5),
+    "route": RouteLayout(**_ROUTE),
     # a channel: all the clutter 0-2 cm outside a band with only d4 (1 cm) to spare, on both sides of it, so
     # the held box must follow the bend to within a few centimetres all the way
     "narrow": RouteLayout(clearance=0.01, near_gap=0.02, inner_share=0.5, near_fraction=1.0),
+    # half the scenes semantic-only: what only a policy that tells touchable objects from fragile ones can solve
+    # (the paper's Tables I and II)
+    "gate": RouteLayout(**_ROUTE, gate_share=0.5),
+    # half the scenes with a fragile object just past the pull lane: speed for the top box against stopping
+    # distance (the paper's Fig. 4, its dynamic interaction)
+    "exit": RouteLayout(**_ROUTE, exit_share=0.5),
 }
-"""The route layouts by name (``SceneConfig.layout``; ``clear_route=False`` is the straight-corridor one)."""
+"""The layouts by name (``SceneConfig.layout``; ``clear_route=False`` is the straight-corridor one)."""
 
 
 class PlacementError(SceneConfigError):
@@ -91,6 +143,8 @@ class Placement:
     yaw: np.ndarray  # (N,)
     near_path: np.ndarray  # (N,) bool
     route: Route | None = None
+    kind: str = "open"  # ``SCENE_KINDS``
+    roles: tuple[str, ...] = ()  # per object in gate and exit scenes: "blocker", "flank", "probe" or ""
 
 
 def sample_route(rng: np.random.Generator, geometry: TaskGeometry = GEOMETRY, spacing: float = 0.02,
@@ -190,7 +244,8 @@ def _route_gap_squared(xs: np.ndarray, ys: np.ndarray, route: Route) -> np.ndarr
 
 
 def sample_placement(radii: np.ndarray, rng: np.random.Generator, near_path_fraction: float = 0.5,
-                     geometry: TaskGeometry = GEOMETRY, max_tries: int = 1000, route: Route | None = None) -> Placement:
+                     geometry: TaskGeometry = GEOMETRY, max_tries: int = 1000, route: Route | None = None,
+                     kind: str = "open", fragile: np.ndarray | None = None) -> Placement:
     """Place objects with footprint ``radii`` without overlap.
 
     ``round(near_path_fraction * N)`` objects go near the task path, as long as it has room (``near_path`` says
@@ -198,11 +253,32 @@ def sample_placement(radii: np.ndarray, rng: np.random.Generator, near_path_frac
     half-width 0.14 m (0.30 m if crowded) around the segment from the pulled-out box to the goal. With one,
     near means at most the route layout's ``near_gap`` (0.30 m if crowded) outside the route's band, and no object stands
     on the band. Deterministic for a given generator state.
+
+    ``kind`` (which needs a route) first places the objects that have a role in it (``SCENE_KINDS``): in a
+    ``gate``, 1-2 of the objects that are not ``fragile`` stand on the route and the fragile ones beside them; in
+    an ``exit``, one fragile object stands past the pull lane. The rest are placed as in an open scene. A scene
+    that lacks what its kind needs (a gate without a touchable object, an exit without a fragile one) is placed
+    as an open one and says so (``Placement.kind``).
     """
     n = len(radii)
     if n == 0:  # draws nothing, as the general path would
         return Placement(xy=np.zeros((0, 2)), yaw=np.zeros(0), near_path=np.zeros(0, dtype=bool), route=route)
-    n_near = int(round(near_path_fraction * n))
+    if kind not in SCENE_KINDS:
+        raise PlacementError(f"unknown scene kind {kind!r}: use one of {SCENE_KINDS}")
+    if kind != "open":
+        if route is None:
+            raise PlacementError(f"a {kind} scene is placed around a route: keep clear_route on")
+        return _place_by_roles(np.asarray(radii, dtype=float), rng, near_path_fraction, geometry, max_tries, route,
+                               kind, np.ones(n, dtype=bool) if fragile is None else np.asarray(fragile, dtype=bool))
+    return _place_open(radii, rng, near_path_fraction, geometry, max_tries, route)
+
+
+def _place_open(radii: np.ndarray, rng: np.random.Generator, near_path_fraction: float, geometry: TaskGeometry,
+                max_tries: int, route: Route | None, placed: list[tuple[float, float, float]] | None = None,
+                skip: frozenset[int] = frozenset()) -> Placement:
+    """An open scene's placement (``sample_placement``); the objects in ``skip`` already stand in ``placed``."""
+    n = len(radii)
+    n_near = int(round(near_path_fraction * (n - len(skip))))
     sx, sy = (float(v) for v in geometry.path_start_xy)
     dx, dy = geometry.goal_xy[0] - sx, geometry.goal_xy[1] - sy
     length = math.sqrt(dx * dx + dy * dy)  # as np.linalg.norm, so placements stay bit-identical
@@ -221,11 +297,11 @@ def sample_placement(radii: np.ndarray, rng: np.random.Generator, near_path_frac
         return -tx + (tx - -tx) * u[:, 0], -ty + (ty - -ty) * u[:, 1]
 
     frame = _route_frame(route) if route is not None else None
-    placed: list[tuple[float, float, float]] = []
+    placed = [] if placed is None else placed
     near = np.zeros(n, dtype=bool)
-    order = np.argsort(-np.asarray(radii), kind="stable")  # big objects first: fewer rejections
+    order = [i for i in np.argsort(-np.asarray(radii), kind="stable").tolist() if i not in skip]  # big first
     xy_out = np.zeros((n, 2))
-    for rank, i in enumerate(order.tolist()):
+    for rank, i in enumerate(order):
         want_near = rank < n_near
         r = float(radii[i])
         # tries in the corridor (widened if it is crowded), then anywhere free if it is full even so
@@ -251,6 +327,100 @@ def sample_placement(radii: np.ndarray, rng: np.random.Generator, near_path_frac
         xy_out[i] = x, y
         near[i] = near_try
     return Placement(xy=xy_out, yaw=rng.uniform(-np.pi, np.pi, size=n), near_path=near, route=route)
+
+
+EXIT_CLEARANCE = 0.01
+"""An exit probe's near edge stands at least this far past the lane [m]: d4, so that a box that stops right at
+the end of the lane is not yet judged to touch it."""
+
+
+def _place_by_roles(radii: np.ndarray, rng: np.random.Generator, near_path_fraction: float, geometry: TaskGeometry,
+                    max_tries: int, route: Route, kind: str, fragile: np.ndarray) -> Placement:
+    """A gate or exit scene (``sample_placement``): the objects with a role first, then the rest as in an open one."""
+    n = len(radii)
+    layout = route.layout
+    roles = [""] * n
+    placed: list[tuple[float, float, float]] = []
+    at: dict[int, tuple[float, float]] = {}
+    keep_out = _keep_out_rects(geometry)
+    touchable, breakable = np.flatnonzero(~fragile).tolist(), np.flatnonzero(fragile).tolist()
+    if kind == "gate" and touchable:
+        gate = layout.gate
+        count = min(int(rng.integers(gate.blockers[0], gate.blockers[1] + 1)), len(touchable))
+        frame = _route_frame(route)
+        for i in [touchable[j] for j in rng.permutation(len(touchable))[:count].tolist()]:
+            # on the route's centre line, where it runs between its ends: the band itself is no obstacle here
+            found = _first_free(rng, max_tries, float(radii[i]), placed, geometry, keep_out,
+                                _on_route(frame, gate.along, gate.off_centre))
+            if found is not None:
+                at[i] = found
+                placed.append((*found, float(radii[i])))
+                roles[i] = "blocker"
+        anchors = list(at.values())
+        for i in breakable if anchors else []:  # beside the band, either side, close to a blocker
+            found = _first_free(rng, max_tries, float(radii[i]), placed, geometry, keep_out,
+                                _beside_anchor(route, frame, float(radii[i]), gate.flank_gap, gate.flank_span,
+                                               anchors), route)
+            if found is not None:
+                at[i] = found
+                placed.append((*found, float(radii[i])))
+                roles[i] = "flank"
+    elif kind == "exit" and breakable:
+        probe = layout.exit
+        i = breakable[int(rng.integers(len(breakable)))]
+        r = float(radii[i])
+        hx, hy, _ = geometry.box_half_extents
+        lane_end = geometry.path_start_xy[0] + hx  # the held box's right edge as it comes out
+        u = rng.random(2)
+        x = lane_end + EXIT_CLEARANCE + r + probe.gap[0] + (probe.gap[1] - probe.gap[0]) * float(u[0])
+        y = geometry.path_start_xy[1] + (2 * float(u[1]) - 1) * probe.across * hy
+        at[i] = (x, y)
+        placed.append((x, y, r))
+        roles[i] = "probe"
+    if not at:  # the scene lacks what its kind needs: an open one
+        return _place_open(radii, rng, near_path_fraction, geometry, max_tries, route)
+    rest = _place_open(radii, rng, near_path_fraction, geometry, max_tries, route, placed, frozenset(at))
+    xy, near = rest.xy.copy(), rest.near_path.copy()
+    for i, point in at.items():
+        xy[i], near[i] = point, True
+    return Placement(xy=xy, yaw=rest.yaw, near_path=near, route=route, kind=kind, roles=tuple(roles))
+
+
+def _on_route(frame: tuple, along: tuple[float, float], off_centre: float):
+    """Map two uniform draws to a point on the route's centre line between ``along`` (fractions of its length),
+    up to ``off_centre`` to either side."""
+    points, steps, seg_len, cum, normals = frame
+
+    def to_xy(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        s = (along[0] + (along[1] - along[0]) * u[:, 0]) * cum[-1]
+        seg = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(steps) - 1)
+        base = points[seg] + ((s - cum[seg]) / seg_len[seg])[:, None] * steps[seg]
+        offset = (2 * u[:, 1] - 1) * off_centre
+        return base[:, 0] + offset * normals[seg, 0], base[:, 1] + offset * normals[seg, 1]
+    return to_xy
+
+
+def _beside_anchor(route: Route, frame: tuple, r: float, gap: float, span: float, anchors: list[tuple[float, float]]):
+    """Map two uniform draws to a point just outside the route's band (up to ``gap`` beyond its edge, either
+    side), at most ``span`` along the route from one of the ``anchors`` (which one: the first draw)."""
+    points, steps, seg_len, cum, normals = frame
+    hx, hy = route.half_extents
+    # how far along the route each anchor stands: at its nearest route point
+    anchor_s = np.array([cum[int(np.argmin(np.hypot(points[:, 0] - ax, points[:, 1] - ay)))] for ax, ay in anchors])
+
+    def to_xy(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        scaled = u[:, 0] * len(anchors)
+        pick = np.minimum(scaled.astype(int), len(anchors) - 1)
+        s = np.clip(anchor_s[pick] + (2 * (scaled - pick) - 1) * span, 0.0, cum[-1])
+        seg = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(steps) - 1)
+        base = points[seg] + ((s - cum[seg]) / seg_len[seg])[:, None] * steps[seg]
+        n = normals[seg]
+        left = u[:, 1] < 0.5
+        side = np.where(left, -1.0, 1.0)
+        beyond = np.where(left, 2 * u[:, 1], 2 * u[:, 1] - 1) * gap
+        out = np.abs(n[:, 0]) * hx + np.abs(n[:, 1]) * hy + r + _CLEARANCE + 1e-6 + beyond
+        return base[:, 0] + side * out * n[:, 0], base[:, 1] + side * out * n[:, 1]
+    return to_xy
 
 
 def _first_free(rng: np.random.Generator, tries: int, r: float, placed: list[tuple[float, float, float]],

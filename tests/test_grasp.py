@@ -1,0 +1,73 @@
+"""The contact grasp (``scene/grasp.py``): spring-loaded fingertip pads press on the box lip and drag it by
+friction. The hand cannot lift the box, cannot press it into the table with more than the pads' spring, and
+drags it along as long as friction allows."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from safemanip.env.slide_out import SlideOutEnv
+from safemanip.scene.grasp import PAD_PRELOAD, PAD_PRESS, PAD_STIFFNESS, PAD_TRAVEL
+
+NOMINAL = 2 * PAD_STIFFNESS * (PAD_PRELOAD + PAD_PRESS)  # both pads at the nominal press [N]
+MOST = 2 * PAD_STIFFNESS * (PAD_PRELOAD + PAD_TRAVEL)  # both pads pushed in all the way
+
+
+def _pad_force(env) -> float:
+    """Total normal force of the pads on the held box now [N]."""
+    m, d = env.model, env.data
+    box = m.geom("box_bottom").id
+    force, total = np.zeros(6), 0.0
+    for i in range(d.ncon):
+        c = d.contact[i]
+        if box in (c.geom1, c.geom2) and "pad" in m.geom(c.geom1 if c.geom2 == box else c.geom2).name:
+            mujoco.mj_contactForce(m, d, i, force)
+            total += force[0]
+    return total
+
+
+def _run(env, action, steps):
+    """Step with ``action``; per step the mean pad force over its substeps and the box's height at its end."""
+    forces, heights, per_step = [], [], []
+    env.watch_substeps(1, lambda e: per_step.append(_pad_force(e)))
+    for _ in range(steps):
+        per_step.clear()
+        env.step(np.asarray(action, dtype=np.float32))
+        forces.append(float(np.mean(per_step)))
+        heights.append(float(env.data.xpos[env.index.bottom_box_body][2]))
+    env.watch_substeps(None)
+    return np.array(forces), np.array(heights)
+
+
+@pytest.mark.parametrize("embodiment", ["panda", "hand"])
+def test_the_pads_press_with_their_spring_force_and_no_more(embodiment):
+    env = SlideOutEnv(n_objects=0, embodiment=embodiment)
+    env.reset(seed=0)
+    forces, heights = _run(env, [0.0, 0.0, -1.0], 10)  # pushing down as hard as the action allows
+    assert np.all(forces[2:] > 0.8 * NOMINAL) and np.all(forces <= MOST), forces
+    hz = env.geometry.box_half_extents[2]
+    assert np.all(np.abs(heights - hz) < 0.001)  # flat on the table
+
+
+@pytest.mark.parametrize("embodiment", ["panda", "hand"])
+def test_the_hand_cannot_lift_the_box(embodiment):
+    env = SlideOutEnv(n_objects=0, embodiment=embodiment)
+    env.reset(seed=0)
+    forces, heights = _run(env, [0.0, 0.0, 1.0], 10)  # up to the top of the lift band (2 cm)
+    hz = env.geometry.box_half_extents[2]
+    assert np.all(heights < hz + 0.001), heights
+    assert forces[-1] == pytest.approx(0.0, abs=0.5)  # the pads have left the lip
+
+
+def test_the_pads_drag_the_box_along():
+    env = SlideOutEnv(n_objects=0)
+    env.reset(seed=0)
+    state = env.scene_state()
+    offset = state.ee_pos[:2] - state.bottom_pos[:2]
+    for _ in range(6):
+        env.step(np.array([0.5, 0.0, -1.0], dtype=np.float32))  # 0.85 m/s along the pull
+    state = env.scene_state()
+    assert state.bottom_pos[0] - env.geometry.bottom_xy[0] > 0.15  # the box came along
+    np.testing.assert_allclose(state.ee_pos[:2] - state.bottom_pos[:2], offset, atol=0.01)  # hardly slipping
