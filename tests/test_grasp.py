@@ -8,11 +8,12 @@ import mujoco
 import numpy as np
 import pytest
 
-from safemanip.env.slide_out import SlideOutEnv
+from safemanip.env.slide_out import LIFT_BAND, SlideOutEnv
 from safemanip.scene.grasp import PAD_PRELOAD, PAD_PRESS, PAD_STIFFNESS, PAD_TRAVEL
 
 NOMINAL = 2 * PAD_STIFFNESS * (PAD_PRELOAD + PAD_PRESS)  # both pads at the nominal press [N]
 MOST = 2 * PAD_STIFFNESS * (PAD_PRELOAD + PAD_TRAVEL)  # both pads pushed in all the way
+LEAST = 2 * PAD_STIFFNESS * (PAD_PRELOAD + PAD_PRESS - LIFT_BAND)  # the hand at the top of its lift band
 
 
 def _pad_force(env) -> float:
@@ -52,13 +53,13 @@ def test_the_pads_press_with_their_spring_force_and_no_more(embodiment):
 
 
 @pytest.mark.parametrize("embodiment", ["panda", "hand"])
-def test_the_hand_cannot_lift_the_box(embodiment):
+def test_the_hand_cannot_lift_the_box_nor_let_go_of_it(embodiment):
     env = SlideOutEnv(n_objects=0, embodiment=embodiment)
     env.reset(seed=0)
-    forces, heights = _run(env, [0.0, 0.0, 1.0], 10)  # up to the top of the lift band (2 cm)
+    forces, heights = _run(env, [0.0, 0.0, 1.0], 10)  # up to the top of the lift band
     hz = env.geometry.box_half_extents[2]
     assert np.all(heights < hz + 0.001), heights
-    assert forces[-1] == pytest.approx(0.0, abs=0.5)  # the pads have left the lip
+    assert np.all(forces[3:] > 0.8 * LEAST) and np.all(forces <= MOST), forces  # still pressing
 
 
 def test_the_pads_drag_the_box_along():

@@ -29,6 +29,7 @@ from safemanip.scene.builder import CONTROL_DT, SUBSTEPS, SceneIndex, build_mode
 from safemanip.scene.catalog import CONSTRAINT_TYPES, load_catalog, names_of_class
 from safemanip.scene.config import GEOMETRY, SceneConfig
 from safemanip.scene.embodiment import EMBODIMENTS, make_embodiment
+from safemanip.scene.grasp import PAD_PRESS
 from safemanip.control.planner import open_for_the_arm, part_extents
 from safemanip.scene.placement import LAYOUTS, sample_placement, sample_route
 
@@ -36,7 +37,9 @@ CONSTRAINT_MODES = ("ground_truth", "conservative", "random")
 EVENTS = ("running", "success", "failure:dyn", "failure:hard", "failure:soft", "failure:oob", "timeout", "unstable")
 DISTANCE_CAP = 0.3  # geom distances saturate here: far objects do not need an exact value
 _MANIPULATED_REACH = 0.25  # bounding radius of the held box and the hand around the box centre
-LIFT_BAND = 0.02  # the hand may rise this far above pressing on the lip [m]: up to 1 cm it still drags the box
+LIFT_BAND = 0.5 * PAD_PRESS  # the hand may rise this far above the nominal press [m]: the pads, half out, still
+# press with 18 N (20 N at the nominal press), so the action's z only trims the pressing force and never lets go
+HEIGHT_GAIN = 0.5  # share of the hand's height error corrected per step: a full correction overshoots and rings
 SCENE_TRIES = 20  # draws of a gate or exit scene before the episode falls back to an open one
 RESTING_TOLERANCE = 0.002  # success needs the held box on the table: its bottom face at most this high [m]
 
@@ -259,7 +262,7 @@ class SlideOutEnv(gym.Env):
         # the lift band: the action moves the commanded height within the band, and the hand is sent there (the
         # pads' push makes the velocity-servoed arm drift up by a few mm otherwise)
         self._height = min(max(self._height + request[2] * CONTROL_DT, z_low), z_high)
-        request[2] = (self._height - self._values[2]) / CONTROL_DT
+        request[2] = HEIGHT_GAIN * (self._height - self._values[2]) / CONTROL_DT
         command = limit_ee_velocity(request, self._command, CONTROL_DT, self.max_speed, self.max_accel)
         self._command = command
         m, d = self.model, self.data
