@@ -6,8 +6,8 @@
 # Each run stops at 400k environment steps (100k learner updates: the data rate is held at 4 steps per update),
 # the same budget for every method; --minutes only guards against a stalled run. A finished run is skipped, an
 # interrupted one resumed from its newest checkpoint. Seed 0 of every run comes first, then seeds 1 and 2, so a
-# partial queue still covers every figure with one seed. The finished policies go to src/safemanip/policies/bench/
-# (results/bench/promote.sh), their training records to results/bench/training/.
+# partial queue still covers every figure with one seed. The finished policies go to src/safemanip/policies/
+# (results/bench/promote.py), their training records to results/bench/training/.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 RUNS=${1:-runs/bench}
