@@ -1,0 +1,175 @@
+"""Bad inputs, second round (issue 28): files. Every file the package reads goes through one bounded JSON reader
+(size and nesting depth checked before parsing, no NaN/Infinity, no key twice) and the checks of what it holds,
+so a safetensors header the Rust loader would refuse, JSON nested 100,000 deep, metadata of the wrong types, a
+sweep spec outside its schema, an edited or damaged run folder and a Ray address in a file are all answered with
+exit code 2 and one line that says what is wrong and what to do, before any work; never a traceback."""
+
+from __future__ import annotations
+
+import json
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from safemanip.cli import main
+from safemanip.rl.checkpoint import POLICY_FORMAT
+from test_bad_inputs import assert_refused, policy_file, run
+from test_evaluation import make_policy
+
+DEEP = "[" * 100_000 + "]" * 100_000
+"""JSON nested 100,000 levels deep: Python's parser would end in a RecursionError."""
+
+
+def raw_safetensors(path: Path, header_text: str, data: bytes) -> str:
+    head = header_text.encode()
+    path.write_bytes(struct.pack("<Q", len(head)) + head + data)
+    return str(path)
+
+
+def _good_parts(tmp: Path) -> tuple[dict, bytes, str]:
+    """(header, tensor bytes, header text) of a valid one-layer policy file."""
+    good = Path(policy_file(tmp / "good.safetensors"))
+    data = good.read_bytes()
+    (n,) = struct.unpack("<Q", data[:8])
+    text = data[8:8 + n].decode().rstrip()  # the writer pads the header with spaces
+    return json.loads(text), data[8 + n:], text
+
+
+# ------------------------------------------------------------------------------------------ 1. safetensors headers
+def _rust_refused_headers(tmp: Path) -> dict[str, tuple[str, str]]:
+    header, body, text = _good_parts(tmp)
+    name = next(k for k in header if k != "__metadata__")
+    out = {}
+
+    def variant(case: str, new_text: str, message: str):
+        out[case] = (raw_safetensors(tmp / f"{case}.safetensors", new_text, body), message)
+
+    floats = {**header, name: {**header[name], "data_offsets": [float(x) for x in header[name]["data_offsets"]]}}
+    variant("float-offsets", json.dumps(floats), "invalid entry")
+    variant("float-shape", json.dumps({**header, name: {**header[name], "shape": [float(x) for x in header[name]["shape"]]}}),
+            "invalid entry")
+    variant("bool-shape", json.dumps({**header, name: {**header[name], "shape": [True] * len(header[name]["shape"])}}),
+            "invalid entry")
+    variant("nan-token", text.replace(f'"{name}":{{', f'"{name}":{{"x":NaN,', 1), "holds NaN")
+    variant("infinity-token", text.replace(f'"{name}":{{', f'"{name}":{{"x":-Infinity,', 1), "holds -Infinity")
+    variant("duplicate-metadata", '{"__metadata__":{"format":"other/1"},' + text[1:], "key '__metadata__' twice")
+    variant("duplicate-tensor", text[:-1] + f',"{name}":' + json.dumps(header[name]) + "}", f"key '{name}' twice")
+    variant("extra-entry-field", json.dumps({**header, name: {**header[name], "scale": 2}}), "invalid entry")
+    variant("deep-header", '{"__metadata__":' + "[" * 5000 + "]" * 5000 + "}", "nests 5,001 levels")
+    return out
+
+
+RUST_REFUSED = ["float-offsets", "float-shape", "bool-shape", "nan-token", "infinity-token", "duplicate-metadata",
+                "duplicate-tensor", "extra-entry-field", "deep-header"]
+
+
+# ------------------------------------------------------------------------------------------ 1. JSON 100k deep
+
+
+# ------------------------------------------------------------------------------------------ 1. metadata types
+GOOD_META = {"algorithm": "rarl", "k": 1, "constraints": "conservative", "obs_dim": 26, "act_dim": 3, "hidden": [8],
+             "env_kwargs": {"n_objects": 1, "max_episode_steps": 300, "embodiment": "panda"}}
+
+
+# ------------------------------------------------------------------------------------------ 2. sweep schema
+def _spec(tmp_path: Path, **change) -> Path:
+    policy = make_policy(tmp_path / "rarl-k2-conservative.safetensors", 2)
+    spec = {"name": "s", "title": "t", "figure": "table", "episodes": 1, "seed": 0, "judge": "conservative",
+            "policies": [policy], "n_objects": [2], "selectors": ["full"],
+            "table": {"rows": ["k"], "columns": ["selector"]}}
+    for key, value in change.items():
+        if value is ...:
+            spec.pop(key)
+        else:
+            spec[key] = value
+    path = tmp_path / "spec.json"
+    path.write_text(json.dumps(spec))
+    return path
+
+
+# ------------------------------------------------------------------------------------------ 3. resume
+def fake_run(tmp_path: Path, **config) -> Path:
+    """A run folder with a real (untrained) checkpoint, written as the training loop writes it, without training."""
+    from safemanip.env.observation import observation_dim
+    from safemanip.rl.buffer import ReplayBuffer
+    from safemanip.rl.checkpoint import write_checkpoint
+    from safemanip.rl.config import TrainConfig
+    from safemanip.rl.learner import Learner
+
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    cfg = TrainConfig(**{"k": 1, "hidden": (16, 16), "batch_size": 8, "buffer_size": 200, "learning_starts": 8,
+                         "random_steps": 8, "out_dir": str(run_dir), "precision": "fp32", "device": "cpu", **config})
+    obs_dim = observation_dim(cfg.k, cfg.object_size)
+    learner = Learner(obs_dim, 3, cfg)
+    buffer = ReplayBuffer(cfg.buffer_size, obs_dim, 3)
+    rng = np.random.default_rng(0)
+    buffer.add_many({"obs": rng.normal(size=(20, obs_dim)).astype(np.float32),
+                     "act": rng.uniform(-1, 1, (20, 3)).astype(np.float32),
+                     "next_obs": rng.normal(size=(20, obs_dim)).astype(np.float32),
+                     **{k: rng.normal(size=20).astype(np.float32) for k in ("l", "g", "next_l", "next_g")},
+                     "terminated": np.zeros(20, bool)})
+    write_checkpoint(run_dir, learner.state_tensors(), buffer,
+                     {"env_steps": 20, "updates": 0, "elapsed_s": 1.0, "restarts": 0, "best": {"success": -1.0},
+                      "config": json.loads(cfg.to_json())})
+    (run_dir / "config.json").write_text(cfg.to_json())
+    return run_dir
+
+
+def _edit_config(run_dir: Path, **change) -> None:
+    cfg = json.loads((run_dir / "config.json").read_text())
+    cfg.update(change)
+    (run_dir / "config.json").write_text(json.dumps(cfg))
+
+
+# ------------------------------------------------------------------------------------------ 5. no Ray address from files
+
+
+# ------------------------------------------------------------------------------------------ 9. --semantic-examples
+SECRET_LINE = "root:x:0:0:TOP-SECRET-CONTENT:/root:/bin/bash"
+
+
+@pytest.mark.parametrize("value", ["heldout_names_v1.json", "heldout-v2", "/etc/passwd", "../../../../etc/passwd",
+                                   "data/class_examples_v3.json", "class_examples_v3.json/..", "FOREIGN", "v3.json",
+                                   "class_examples_v3.txt"])
+def test_semantic_examples_accepts_only_its_documented_format(capsys, tmp_path, value):
+    foreign = tmp_path / "foreign.json"
+    foreign.write_text(json.dumps({"classes": {"a": [SECRET_LINE]}, "decision": {"rule": SECRET_LINE}}))
+    value = value.replace("FOREIGN", str(foreign))
+    err = assert_refused(capsys, ["classify-constraints", "--semantic-examples", value, "mug"], "is not an example set")
+    assert "class_examples_<version>.json" in err and SECRET_LINE not in err
+
+
+def test_semantic_examples_never_echoes_a_files_content(monkeypatch, tmp_path):
+    """A class-example file of the wrong shape is refused by what is wrong, not by quoting it."""
+    from importlib import resources
+
+    from safemanip.semantics import semantic_backend
+
+    data = tmp_path / "data"
+    data.mkdir()
+    (data / "class_examples_vx.json").write_text(json.dumps({"classes": {SECRET_LINE: ["x"]}}))
+    (data / "class_examples_vy.json").write_text(json.dumps({"classes": {"fragile": ["a"], "soft": ["b"], "durable": ["c"]},
+                                                             "decision": {"rule": SECRET_LINE}}))
+    (data / "class_examples_vz.json").write_text("[" * 50 + "]" * 50)
+
+    class Files:
+        def joinpath(self, name):
+            return data if name == "data" else data / name
+
+    monkeypatch.setattr(resources, "files", lambda package: Files())
+    for name, message in (("class_examples_vx.json", "must list exactly"), ("class_examples_vy.json", "decision rule"),
+                          ("class_examples_vz.json", "nests 50 levels")):
+        with pytest.raises(ValueError, match=message) as err:
+            semantic_backend.load_class_examples(name) if "vy" not in name else semantic_backend.load_decision_rule(name)
+        assert SECRET_LINE not in str(err.value)
+
+
+def test_semantic_examples_versions_and_file_names_still_work(capsys):
+    for value in ("v1", "class_examples_v2.json"):
+        code, out, err = run(capsys, ["classify-constraints", "--semantic-examples", value, "glass jar"])
+        assert code == 0 and out.startswith("glass jar\t"), err
+
+
