@@ -65,12 +65,81 @@ RUST_REFUSED = ["float-offsets", "float-shape", "bool-shape", "nan-token", "infi
                 "duplicate-tensor", "extra-entry-field", "deep-header"]
 
 
+@pytest.mark.parametrize("case", RUST_REFUSED)
+def test_eval_refuses_a_safetensors_header_the_rust_loader_would_refuse(capsys, tmp_path, case):
+    path, message = _rust_refused_headers(tmp_path)[case]
+    out = tmp_path / "out"
+    err = assert_refused(capsys, ["eval", "--policy", path, "--episodes", "1", "--workers", "1", "--out", out], message)
+    assert "SafetensorError" not in err and not out.exists()
+
+
+def test_the_rust_loader_does_refuse_those_headers(tmp_path):
+    """The premise of the cases above: Python's json accepts these headers, the Rust loader does not."""
+    from safetensors.numpy import load_file
+
+    files = _rust_refused_headers(tmp_path)
+    for case in ("float-offsets", "float-shape", "bool-shape", "nan-token", "duplicate-metadata"):
+        with pytest.raises(Exception, match="(?i)header"):
+            load_file(files[case][0])
+
+
+def test_demo_refuses_a_float_offset_header(capsys, tmp_path):
+    path, message = _rust_refused_headers(tmp_path)["float-offsets"]
+    assert_refused(capsys, ["demo", "--policy", path, "--no-video", "--out", tmp_path / "d"], message)
+
+
 # ------------------------------------------------------------------------------------------ 1. JSON 100k deep
+def test_policy_metadata_nested_100k_deep_is_refused(capsys, tmp_path):
+    path = policy_file(tmp_path / "deep.safetensors", raw_meta=DEEP)
+    err = assert_refused(capsys, ["eval", "--policy", path, "--episodes", "1", "--workers", "1"],
+                         "metadata is not valid JSON")
+    assert "nests 100,000 levels deep" in err
+
+
+def test_the_bounded_reader_checks_size_and_depth_before_parsing(tmp_path):
+    from safemanip.util.files import JSONInputError, json_depth, parse_json, read_json_file
+
+    assert json_depth('{"a": ["[[[", {"b": "]]"}]}') == 3  # brackets inside strings do not count
+    for text, reason in ((DEEP, "nests 100,000"), ('{"a": NaN}', "NaN"), ('{"a": 1, "a": 2}', "twice"),
+                         ("x" * 20, "more than the 10"), (b"\xff\xfe", "not UTF-8")):
+        with pytest.raises(JSONInputError, match=reason):
+            parse_json(text, "doc", max_bytes=10 if reason.startswith("more") else 10_000_000)
+    big = tmp_path / "big.json"
+    big.write_bytes(b" " * 2000)
+    with pytest.raises(JSONInputError, match="2,000 bytes"):
+        read_json_file(big, max_bytes=1000)
 
 
 # ------------------------------------------------------------------------------------------ 1. metadata types
 GOOD_META = {"algorithm": "rarl", "k": 1, "constraints": "conservative", "obs_dim": 26, "act_dim": 3, "hidden": [8],
              "env_kwargs": {"n_objects": 1, "max_episode_steps": 300, "embodiment": "panda"}}
+
+
+@pytest.mark.parametrize("change,message", [
+    ({"env_kwargs": {"near_path_fraction": "x"}}, "env_kwargs.near_path_fraction='x' is not a number in [0, 1]"),
+    ({"env_kwargs": {"near_path_fraction": 7}}, "env_kwargs.near_path_fraction=7 is not a number in [0, 1]"),
+    ({"env_kwargs": {"action_curve": [1, 2]}}, "env_kwargs.action_curve=[1, 2] is not a number from 1 to 4"),
+    ({"env_kwargs": {"clear_route": "no"}}, "env_kwargs.clear_route='no' is not true or false"),
+    ({"env_kwargs": {"object_size": 1}}, "env_kwargs.object_size=1 is not true or false"),
+    ({"env_kwargs": {"layout": 5}}, "env_kwargs.layout=5 is not one of"),
+    ({"env_kwargs": {"max_episode_steps": 1.5}}, "env_kwargs.max_episode_steps=1.5 is not an integer"),
+    ({"env_kwargs": {"max_episode_steps": True}}, "env_kwargs.max_episode_steps=True is not an integer"),
+    ({"k": True}, "k=True is not a slot count"),
+    ({"hidden": ["8"]}, "hidden=['8'] is not a list of layer widths"),
+    ({"network": "transformer"}, "network='transformer' is not 'mlp' or 'set'"),
+    ({"env_kwargs": ["n_objects", 1]}, "env_kwargs=['n_objects', 1] is not an object"),
+])
+def test_eval_refuses_policy_metadata_of_the_wrong_types(capsys, tmp_path, change, message):
+    meta = json.loads(json.dumps(GOOD_META))
+    for key, value in change.items():
+        if isinstance(value, dict):
+            meta[key].update(value)
+        else:
+            meta[key] = value
+    path = policy_file(tmp_path / "p.safetensors", meta=meta)
+    out = tmp_path / "out"
+    assert_refused(capsys, ["eval", "--policy", path, "--episodes", "1", "--workers", "1", "--out", out], message)
+    assert not out.exists()
 
 
 # ------------------------------------------------------------------------------------------ 2. sweep schema
@@ -124,6 +193,15 @@ def _edit_config(run_dir: Path, **change) -> None:
     (run_dir / "config.json").write_text(json.dumps(cfg))
 
 
+def test_evals_jsonl_lines_nested_deep_are_dropped_not_fatal(tmp_path):
+    from safemanip.rl.train import truncate_logs
+
+    (tmp_path / "evals.jsonl").write_text(json.dumps({"env_steps": 10, "success": 0.5}) + "\n" + DEEP + "\n"
+                                          + '{"env_steps": NaN}\n' + json.dumps({"env_steps": "5"}) + "\n")
+    truncate_logs(tmp_path, 100)
+    assert [json.loads(x)["env_steps"] for x in (tmp_path / "evals.jsonl").read_text().splitlines()] == [10]
+
+
 # ------------------------------------------------------------------------------------------ 5. no Ray address from files
 
 
@@ -173,3 +251,7 @@ def test_semantic_examples_versions_and_file_names_still_work(capsys):
         assert code == 0 and out.startswith("glass jar\t"), err
 
 
+def test_policy_format_tag_is_still_checked(capsys, tmp_path):
+    path = policy_file(tmp_path / "p.safetensors", fmt="x/1")
+    assert_refused(capsys, ["eval", "--policy", path, "--episodes", "1", "--workers", "1"], "not a safemanip policy")
+    assert POLICY_FORMAT == "safemanip-policy/1"

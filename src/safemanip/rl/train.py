@@ -25,7 +25,7 @@ from safemanip.rl.envs import make_env
 from safemanip.rl.learner import Learner
 from safemanip.rl.networks import actor_arrays
 from safemanip.rl.rollout import evaluate_actor
-from safemanip.util.files import OutputLock, atomic_write_text, check_output_dir
+from safemanip.util.files import OutputLock, atomic_write_text, check_output_dir, parse_json, read_json_file
 from safemanip.util.procs import stop_on_signals
 
 EVAL_SEED_BASE = 1_000_000  # evaluation seeds are disjoint from every training seed
@@ -96,9 +96,15 @@ def truncate_logs(run_dir: Path, env_steps: int) -> None:
     (scalars.csv, evals.jsonl) and best.safetensors matches the resumed history."""
     scalars = run_dir / "scalars.csv"
     if scalars.exists():
-        with open(scalars, newline="") as f:
-            rows = list(csv.reader(f))
-        kept = rows[:1] + [r for r in rows[1:] if len(r) == 5 and r[1].isdigit() and int(r[1]) <= env_steps]
+        rows = []
+        with open(scalars, newline="", errors="replace") as f:
+            try:
+                for row in csv.reader(f):
+                    rows.append(row)
+            except csv.Error:  # a damaged line (e.g. torn by a kill): keep what came before it
+                pass
+        kept = rows[:1] + [r for r in rows[1:] if len(r) == 5 and r[1].isdigit() and len(r[1]) < 19
+                           and int(r[1]) <= env_steps]
         if len(kept) != len(rows):
             text = io.StringIO()
             csv.writer(text).writerows(kept)
@@ -106,12 +112,13 @@ def truncate_logs(run_dir: Path, env_steps: int) -> None:
     evals = run_dir / "evals.jsonl"
     if evals.exists():
         kept_lines = []
-        for line in evals.read_text().splitlines():
+        for line in evals.read_text(errors="replace").splitlines():
             try:
-                if int(json.loads(line)["env_steps"]) <= env_steps:
+                steps = parse_json(line, "a line of evals.jsonl", max_bytes=100_000)["env_steps"]
+                if isinstance(steps, int) and not isinstance(steps, bool) and steps <= env_steps:
                     kept_lines.append(line)
             except (ValueError, KeyError, TypeError):
-                pass  # a torn last line from a kill
+                pass  # a torn last line from a kill, or a line that is not an evaluation: dropped
         atomic_write_text(evals, "".join(x + "\n" for x in kept_lines))
     best = run_dir / "best.safetensors"
     if best.exists():
@@ -119,6 +126,8 @@ def truncate_logs(run_dir: Path, env_steps: int) -> None:
         try:
             best_steps = load_policy(best)[1].get("env_steps", 0)
         except PolicyFileError:
+            best_steps = env_steps + 1
+        if not isinstance(best_steps, int):
             best_steps = env_steps + 1
         if best_steps > env_steps:  # from the discarded segment: keep it aside, not as the run's best
             os.replace(best, run_dir / f"best.discarded-{best_steps}.safetensors")
@@ -334,6 +343,9 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
                    "final_eval": last_eval_result, "best_eval": best, "interrupted": interrupted,
                    "learner": learner.precision.as_dict()}
         if (run_dir / "init_from.json").exists():  # whose networks this run started from: count its training too
-            summary["init_from"] = json.loads((run_dir / "init_from.json").read_text())
+            try:
+                summary["init_from"] = read_json_file(run_dir / "init_from.json", max_bytes=100_000)
+            except (OSError, ValueError) as err:
+                summary["init_from"] = {"unreadable": str(err)[:200]}
         atomic_write_text(run_dir / "summary.json", json.dumps(summary, indent=1))
     return run_dir

@@ -83,8 +83,10 @@ def object_set(which: str) -> dict[str, str]:
         catalog = load_catalog()
         return {n: catalog[n].constraint for n in PAPER_OBJECTS}
     if which in HELDOUT_FILES:
-        raw = json.loads(resources.files("safemanip.semantics").joinpath("data", HELDOUT_FILES[which])
-                         .read_text(encoding="utf-8"))
+        from safemanip.util.files import parse_json
+
+        raw = parse_json(resources.files("safemanip.semantics").joinpath("data", HELDOUT_FILES[which])
+                         .read_bytes(), HELDOUT_FILES[which])
         return {n: CONSTRAINT_OF_CLASS[c] for c in SEMANTIC_CLASSES for n in sorted(raw["classes"][c])}
     raise ValueError(f"unknown object set {which!r}; choose one of {OBJECT_SETS}")
 
