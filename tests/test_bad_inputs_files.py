@@ -96,6 +96,13 @@ def test_policy_metadata_nested_100k_deep_is_refused(capsys, tmp_path):
     assert "nests 100,000 levels deep" in err
 
 
+def test_a_sweep_spec_nested_100k_deep_is_refused(capsys, tmp_path):
+    spec = tmp_path / "s.json"
+    spec.write_text('{"name": "s", "policies": ' + DEEP + "}")
+    assert_refused(capsys, ["sweep", spec, "--out", tmp_path / "o"], "nests 100,001 levels deep")
+    assert not (tmp_path / "o").exists()
+
+
 def test_the_bounded_reader_checks_size_and_depth_before_parsing(tmp_path):
     from safemanip.util.files import JSONInputError, json_depth, parse_json, read_json_file
 
@@ -156,6 +163,105 @@ def _spec(tmp_path: Path, **change) -> Path:
     path = tmp_path / "spec.json"
     path.write_text(json.dumps(spec))
     return path
+
+
+@pytest.mark.parametrize("text,message", [
+    ("5", "a sweep spec is a JSON object"), ("null", "a sweep spec is a JSON object"),
+    ('["3"]', "a sweep spec is a JSON object"), ('"fig5"', "a sweep spec is a JSON object"),
+])
+def test_sweep_refuses_a_spec_that_is_not_an_object(capsys, tmp_path, text, message):
+    spec = tmp_path / "s.json"
+    spec.write_text(text)
+    assert_refused(capsys, ["sweep", spec, "--out", tmp_path / "o"], message)
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("change,message", [
+    ({"layout": "narrow"}, "unknown key(s) 'layout'"),
+    ({"seeds": 3}, "unknown key(s) 'seeds'"),
+    ({"policies": 5}, "policies must be a non-empty list"),
+    ({"policies": []}, "policies must be a non-empty list"),
+    ({"policies": [5]}, "policy entry 5 must be a path"),
+    ({"policies": [{"path": "policies/rarl-k2-conservative.safetensors", "k": 2}]}, "must be a path or"),
+    ({"episodes": 0}, "episodes must be an integer 1..100000"),
+    ({"episodes": 10**9}, "episodes must be an integer 1..100000"),
+    ({"episodes": "10"}, "episodes must be an integer"),
+    ({"episodes": True}, "episodes must be an integer"),
+    ({"seed": -1}, "seed (the episode seed block) must be an integer"),
+    ({"seed": 2.5}, "seed (the episode seed block) must be an integer"),
+    ({"n_objects": [99]}, "n_objects must be a non-empty list of object counts 0..8"),
+    ({"n_objects": ["3"]}, "n_objects must be a non-empty list of object counts"),
+    ({"n_objects": 3}, "n_objects must be a non-empty list of object counts"),
+    ({"selectors": "full"}, "selectors must be a non-empty list"),
+    ({"selectors": ["nearest"]}, "unknown selector 'nearest'"),
+    ({"constraints": [None]}, "constraints must be a non-empty list"),
+    ({"semantics": [3]}, "semantics must be a non-empty list"),
+    ({"semantics": ["3 squishy"]}, "cannot read"),
+    ({"pairs": [["full"]]}, "pairs must be a non-empty list of [selector, constraints] pairs"),
+    ({"judge": ["conservative"]}, "judge must be one of"),
+    ({"figure": "fig9"}, "figure must be one of"),
+    ({"title": 5}, "title must be a string"),
+    ({"table": {"rows": ["k"], "columns": ["selector"], "colour": "red"}}, "table must be {'rows'"),
+    ({"table": {"rows": ["speed"], "columns": ["selector"]}}, "table rows: unknown cell field(s) 'speed'"),
+    ({"table": {"rows": ["k"], "columns": ["selector", 3]}}, "table columns must be a non-empty list"),
+    ({"table": {"rows": ["k"], "columns": ["k"]}}, "table rows and columns both name k"),
+    ({"k_equals_n_selector": 4}, "unknown k_equals_n_selector 4"),
+    ({"name": "../escaped"}, "name must be a plain file name"),
+    ({"name": "/tmp/abs"}, "name must be a plain file name"),
+    ({"name": "a/b"}, "name must be a plain file name"),
+    ({"name": ".."}, "name must be a plain file name"),
+    ({"name": 5}, "name must be a plain file name"),
+    ({"judge": ...}, "missing key 'judge'"),
+])
+def test_sweep_refuses_a_spec_outside_its_schema_before_the_output_folder_exists(capsys, tmp_path, change, message):
+    out = tmp_path / "o"
+    assert_refused(capsys, ["sweep", _spec(tmp_path, **change), "--out", out], message)
+    assert not out.exists()
+
+
+def test_a_sweep_name_never_writes_outside_the_output_folder(capsys, tmp_path):
+    """A name such as ../x or an absolute path is refused before anything is written anywhere."""
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert_refused(capsys, ["sweep", _spec(tmp_path, name="../escaped"), "--out", tmp_path / "o", "--render-only"],
+                   "plain file name")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(before + ["spec.json", "rarl-k2-conservative.safetensors"])
+
+
+def test_two_policies_of_the_same_k_are_both_shown(tmp_path):
+    from safemanip.evaluation.sweep import cells_of, load_config, markdown_table
+    from test_sweep import _fake_summary
+
+    rarl = make_policy(tmp_path / "rarl-k2-conservative.safetensors", 2)
+    vanilla = make_policy(tmp_path / "vanilla-k2-conservative.safetensors", 2)
+    path = _spec(tmp_path, policies=[rarl, vanilla])
+    cfg = load_config(str(path))
+    cells = cells_of(cfg)
+    assert len(cells) == 2
+    results = [{"cell": {**cell.__dict__}, "summary": _fake_summary(rate)} for cell, rate in zip(cells, (0.25, 0.75))]
+    table = markdown_table(cfg, results)
+    assert "25.0 [" in table and "75.0 [" in table  # one row each, neither hidden behind the other
+    assert "rarl-k2-conservative" in table and "vanilla-k2-conservative" in table
+
+
+def test_a_damaged_or_deep_cell_result_is_redone_not_fatal(capsys, tmp_path):
+    from dataclasses import asdict
+
+    from safemanip.evaluation.sweep import _done, cells_of, load_config, load_results
+    from test_sweep import _fake_summary
+
+    cfg = load_config(str(_spec(tmp_path)))
+    (cell,) = cells_of(cfg)
+    cells = tmp_path / "o" / "cells"
+    cells.mkdir(parents=True)
+    path = cells / f"{cell.id}.json"
+    for text in (DEEP, json.dumps({"cell": asdict(cell), "summary": {"success": 5}}), json.dumps([1, 2]),
+                 json.dumps({"cell": {**asdict(cell), "k": "2"}, "summary": _fake_summary(0.5)})):
+        path.write_text(text)
+        assert not _done(path, cell)
+        assert load_results(tmp_path / "o") == []
+    assert "ignoring unreadable result" in capsys.readouterr().err
+    path.write_text(json.dumps({"cell": asdict(cell), "summary": _fake_summary(0.5)}))
+    assert _done(path, cell) and len(load_results(tmp_path / "o")) == 1
 
 
 # ------------------------------------------------------------------------------------------ 3. resume
