@@ -96,6 +96,13 @@ def test_policy_metadata_nested_100k_deep_is_refused(capsys, tmp_path):
     assert "nests 100,000 levels deep" in err
 
 
+def test_a_config_file_nested_100k_deep_is_refused(capsys, tmp_path):
+    cfg = tmp_path / "c.json"
+    cfg.write_text('{"hidden": ' + DEEP + "}")
+    assert_refused(capsys, ["train", "--config", cfg, "--out", tmp_path / "run"], "nests 100,001 levels deep")
+    assert not (tmp_path / "run").exists()
+
+
 def test_a_sweep_spec_nested_100k_deep_is_refused(capsys, tmp_path):
     spec = tmp_path / "s.json"
     spec.write_text('{"name": "s", "policies": ' + DEEP + "}")
@@ -299,6 +306,57 @@ def _edit_config(run_dir: Path, **change) -> None:
     (run_dir / "config.json").write_text(json.dumps(cfg))
 
 
+@pytest.mark.parametrize("change,message", [
+    ({"k": 2}, "k is 2 in config.json but 1 in the checkpoint"),
+    ({"network": "set"}, "network is 'set' in config.json but 'mlp' in the checkpoint"),
+    ({"hidden": [32, 32]}, "hidden is [32, 32] in config.json but [16, 16] in the checkpoint"),
+    ({"embodiment": "hand"}, "embodiment is 'hand' in config.json but 'panda' in the checkpoint"),
+    ({"algorithm": "vanilla"}, "algorithm is 'vanilla' in config.json but 'rarl' in the checkpoint"),
+    ({"layout": "narrow"}, "layout is 'narrow' in config.json but 'route' in the checkpoint"),
+    ({"constraints": "all"}, "constraints is 'all' in config.json but 'conservative' in the checkpoint"),
+    ({"object_size": True}, "object_size is True in config.json but False in the checkpoint"),
+    ({"action_curve": 3.0}, "action_curve is 3.0 in config.json but 2.0 in the checkpoint"),
+])
+def test_resume_refuses_a_run_whose_config_was_edited(capsys, tmp_path, change, message):
+    run_dir = fake_run(tmp_path)
+    _edit_config(run_dir, **change)
+    before = (run_dir / "config.json").read_text()
+    err = assert_refused(capsys, ["train", "--resume", run_dir, "--no-progress"], message)
+    assert "Restore config.json" in err and "start a new run with --out" in err
+    assert (run_dir / "config.json").read_text() == before and not (run_dir / "scalars.csv").exists()
+
+
+def test_resume_refuses_a_truncated_replay_buffer_and_says_how_to_recover(capsys, tmp_path):
+    from safemanip.rl.config import TrainConfig
+    from safemanip.rl.train import warm_start
+
+    run_dir = fake_run(tmp_path)
+    replay = run_dir / "checkpoint" / "replay.npz"
+    replay.write_bytes(replay.read_bytes()[:300])
+    err = assert_refused(capsys, ["train", "--resume", run_dir, "--no-progress"], "replay buffer cannot be restored")
+    assert "truncated or damaged" in err and f"--init-from {run_dir}" in err
+    # the recovery it names works: a new run can start from the checkpoint's networks
+    cfg = TrainConfig.from_file(run_dir / "config.json")
+    networks, provenance = warm_start(TrainConfig.from_dict({**cfg.__dict__, "init_from": str(run_dir),
+                                                             "out_dir": str(tmp_path / "new")}))
+    assert networks and provenance["run"] == str(run_dir)
+
+
+@pytest.mark.parametrize("meta_text,message", [
+    (DEEP, "nests 100,000 levels deep"),
+    ("{not json", "is not valid JSON"),
+    ('{"updates": "x", "env_steps": 1, "elapsed_s": 1.0}', "updates missing or of the wrong type"),
+    ('{"updates": 1, "env_steps": 1, "elapsed_s": NaN}', "holds NaN"),
+    ('{"updates": 1, "env_steps": 1, "elapsed_s": 1.0, "config": [1]}', "config missing or of the wrong type"),
+])
+def test_resume_refuses_a_bad_meta_json_and_says_how_to_recover(capsys, tmp_path, meta_text, message):
+    run_dir = fake_run(tmp_path)
+    (run_dir / "checkpoint" / "meta.json").write_text(meta_text)
+    err = assert_refused(capsys, ["train", "--resume", run_dir, "--no-progress"], message)
+    assert "no usable checkpoint" in err and "Restore the damaged file from a backup" in err
+    assert f"--config {run_dir / 'config.json'} --out NEW_FOLDER" in err
+
+
 def test_evals_jsonl_lines_nested_deep_are_dropped_not_fatal(tmp_path):
     from safemanip.rl.train import truncate_logs
 
@@ -309,6 +367,26 @@ def test_evals_jsonl_lines_nested_deep_are_dropped_not_fatal(tmp_path):
 
 
 # ------------------------------------------------------------------------------------------ 5. no Ray address from files
+def test_a_config_file_naming_a_ray_cluster_is_refused(capsys, tmp_path):
+    cfg = tmp_path / "c.json"
+    cfg.write_text(json.dumps({"backend": "ray", "address": "10.0.0.1:6379"}))
+    assert_refused(capsys, ["train", "--config", cfg, "--out", tmp_path / "run"],
+                   "a config file may not name a Ray cluster ('address'): the address comes from --address")
+    assert not (tmp_path / "run").exists()
+
+
+def test_the_address_is_never_written_and_dropped_from_a_run_config_on_resume(capsys, tmp_path):
+    from safemanip.rl.config import TrainConfig, load_run_config
+
+    cfg = TrainConfig(backend="ray", address="10.0.0.1:6379")
+    assert "address" not in json.loads(cfg.to_json())  # config.json, checkpoints and policies never hold it
+    run_dir = fake_run(tmp_path)
+    _edit_config(run_dir, backend="ray", address="10.9.9.9:6379")  # what an older version (or an attacker) wrote
+    loaded, dropped = load_run_config(run_dir / "config.json")
+    assert loaded.address is None and dropped == "10.9.9.9:6379"
+    _edit_config(run_dir, k=2)  # stop the resume right after the config is read, before any work
+    err = assert_refused(capsys, ["train", "--resume", run_dir, "--no-progress"], "k is 2 in config.json")
+    assert "records a Ray cluster address ('10.9.9.9:6379'); it is ignored" in err
 
 
 # ------------------------------------------------------------------------------------------ 9. --semantic-examples

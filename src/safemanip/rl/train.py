@@ -17,10 +17,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from safemanip.rl.buffer import ReplayBuffer
-from safemanip.rl.checkpoint import find_checkpoint, read_checkpoint, recover_checkpoint, save_policy, write_checkpoint
+from safemanip.rl.buffer import ReplayBuffer, ReplayFileError
+from safemanip.rl.checkpoint import (CHECKPOINT_NAMES, CheckpointError, find_checkpoint, read_checkpoint,
+                                     read_checkpoint_meta, recover_checkpoint, save_policy, write_checkpoint)
 from safemanip.rl.collector import make_pool
-from safemanip.rl.config import ConfigError, TrainConfig
+from safemanip.rl.config import ConfigError, TrainConfig, load_run_config
 from safemanip.rl.envs import make_env
 from safemanip.rl.learner import Learner
 from safemanip.rl.networks import actor_arrays
@@ -150,7 +151,7 @@ def warm_start(cfg: TrainConfig) -> tuple[dict, dict] | None:
     if checkpoint is None:
         raise ConfigError(f"--init-from {source}: no complete checkpoint there; give a training run's folder "
                           f"(the --out of an earlier safemanip train)")
-    src = TrainConfig.from_file(source / "config.json")
+    src, _ = load_run_config(source / "config.json")  # only its network and task fields are read
     differ = [f"{name} is {getattr(src, name)!r} there but {getattr(cfg, name)!r} here" for name in WARM_START_FIELDS
               if getattr(src, name) != getattr(cfg, name)]
     if differ:
@@ -162,13 +163,70 @@ def warm_start(cfg: TrainConfig) -> tuple[dict, dict] | None:
                       "elapsed_s": round(meta["elapsed_s"], 1)}
 
 
+RESUME_FIELDS = ("algorithm", "k", "constraints", "network", "set_embed", "hidden", "twin_critics", "embodiment",
+                 "layout", "clear_route", "near_path_fraction", "object_size", "action_curve", "slot_order",
+                 "max_episode_steps", "env", "extra_env_kwargs", "scene_objects", "scene_objects_min", "selector",
+                 "selection_radius", "selection_interval", "buffer_size")
+"""What a resumed run's config.json must share with its checkpoint: the networks' shapes and the meaning of their
+inputs and outputs, the task and its scenes, and the replay buffer's size. Budgets, rates and logging may differ."""
+
+
+def resume_mismatch(cfg: TrainConfig, meta: dict) -> list[str]:
+    """The RESUME_FIELDS on which ``cfg`` differs from the config recorded in a checkpoint's ``meta`` (fields an
+    older checkpoint did not record are not compared)."""
+    recorded = meta.get("config")
+    if not isinstance(recorded, dict):
+        return []
+    now = json.loads(cfg.to_json())
+    return [f"{name} is {now[name]!r} in config.json but {recorded[name]!r} in the checkpoint" for name in RESUME_FIELDS
+            if name in recorded and recorded[name] != now[name]]
+
+
+def recovery_hint(run_dir: Path) -> str:
+    """How to go on from a run whose checkpoint cannot be resumed."""
+    return (f"Restore the damaged file from a backup, or start a new run: safemanip train --config "
+            f"{run_dir / 'config.json'} --out NEW_FOLDER (the policies trained so far stay in {run_dir})")
+
+
+def no_checkpoint_message(run_dir: Path) -> str:
+    """Why ``--resume`` finds no complete checkpoint in ``run_dir``, and what to do."""
+    found = []
+    for name in CHECKPOINT_NAMES:
+        folder = run_dir / name
+        if not folder.is_dir():
+            continue
+        missing = [f for f in ("meta.json", "state.safetensors", "replay.npz") if not (folder / f).is_file()]
+        if missing:
+            found.append(f"{folder} lacks {', '.join(missing)}")
+            continue
+        try:
+            read_checkpoint_meta(folder)
+        except CheckpointError as err:
+            found.append(str(err))
+    if not found:
+        return f"--resume: no complete checkpoint in {run_dir}; start a new run without --resume"
+    return f"--resume {run_dir}: no usable checkpoint: {'; '.join(found)}. {recovery_hint(run_dir)}"
+
+
 def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool, command: str | None,
                   warm: tuple[dict, dict] | None = None) -> Path:
     checkpoint = recover_checkpoint(run_dir) if resume else None
     if resume and checkpoint is None:
-        raise ConfigError(f"--resume: no complete checkpoint in {run_dir}; start a new run without --resume")
+        raise ConfigError(no_checkpoint_message(run_dir))
     if not resume and find_checkpoint(run_dir) is not None:
         raise ConfigError(f"{run_dir} already holds a run: pass --resume to continue it, or choose another --out")
+    resumed = None
+    if checkpoint is not None:  # every file of the checkpoint and its fit to config.json, before anything is written
+        try:
+            resumed = read_checkpoint(checkpoint)
+        except ValueError as err:  # CheckpointError, PolicyFileError
+            raise CheckpointError(f"--resume {run_dir}: {err}. {recovery_hint(run_dir)}") from err
+        differ = resume_mismatch(cfg, resumed[2])
+        if differ:
+            raise ConfigError(f"--resume {run_dir}: its config.json no longer matches the checkpoint it resumes "
+                              f"({'; '.join(differ)}): these change the network or the task, so the checkpoint cannot "
+                              f"continue under them. Restore config.json (the checkpoint's own settings are under "
+                              f"\"config\" in {checkpoint / 'meta.json'}), or start a new run with --out")
     cfg.out_dir = str(run_dir)  # the folder actually written (a copied run folder is its own run)
     atomic_write_text(run_dir / "config.json", cfg.to_json())
 
@@ -188,11 +246,22 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
     elapsed_before = 0.0
     restarts = 0
     best = {"success": -1.0}
-    if checkpoint is not None:
-        tensors, replay_path, meta = read_checkpoint(checkpoint)
-        learner.load_state_tensors(tensors)
+    if resumed is not None:
+        tensors, replay_path, meta = resumed
+        try:
+            learner.load_state_tensors(tensors)
+        except (RuntimeError, KeyError, ValueError) as err:  # shapes or names that do not fit this config's networks
+            raise CheckpointError(f"--resume {run_dir}: the networks in {checkpoint / 'state.safetensors'} do not fit "
+                                  f"its config.json ({str(err)[:200]}). {recovery_hint(run_dir)}") from err
         learner.updates = updates = meta["updates"]
-        buffer.load(replay_path)
+        try:
+            buffer.load(replay_path)
+        except ReplayFileError as err:
+            raise CheckpointError(f"--resume {run_dir}: the replay buffer cannot be restored: {err}. The run cannot "
+                                  f"continue exactly from this checkpoint; to keep its networks, start a new run from "
+                                  f"them (fresh replay buffer): safemanip train --config {run_dir / 'config.json'} "
+                                  f"--init-from {run_dir} --out NEW_FOLDER; or restore {replay_path.name} from a "
+                                  f"backup") from err
         env_steps, elapsed_before = meta["env_steps"], meta["elapsed_s"]
         restarts = meta.get("restarts", 0) + 1
         best = meta.get("best", best)
