@@ -389,6 +389,14 @@ def test_the_address_is_never_written_and_dropped_from_a_run_config_on_resume(ca
     assert "records a Ray cluster address ('10.9.9.9:6379'); it is ignored" in err
 
 
+def test_resume_takes_address_from_the_flag_only(capsys, tmp_path):
+    """--address is allowed on --resume (where the workers run is not a setting of the run), and checked."""
+    run_dir = fake_run(tmp_path, backend="ray")
+    err = assert_refused(capsys, ["train", "--resume", run_dir, "--address", "127.0.0.1:1", "--no-progress"],
+                         "--address 127.0.0.1:1: cannot reach a Ray cluster there")
+    assert "flags differ" not in err
+
+
 # ------------------------------------------------------------------------------------------ 9. --semantic-examples
 SECRET_LINE = "root:x:0:0:TOP-SECRET-CONTENT:/root:/bin/bash"
 

@@ -87,6 +87,73 @@ class DripServer:
 
 
 # ------------------------------------------------------------------------------------------ 4. time limits
+@pytest.mark.parametrize("mode", ["body", "headers"])
+def test_vlm_timeout_bounds_the_whole_request_against_a_dripping_server(mode):
+    with DripServer(mode) as server:
+        backend = OpenAIBackend(model="m", base_url=server.base_url, timeout_s=2.0, attempts=1)
+        start = time.monotonic()
+        with pytest.raises(BackendError, match="no complete answer within 2.0 s"):
+            backend.assign_constraints(ConstraintQuery(names=NAMES))
+        elapsed = time.monotonic() - start
+    assert elapsed < 10, elapsed  # 2 s asked for; without a whole-request deadline: hours (100,000 bytes, 1 a second)
+
+
+def test_classify_constraints_is_cut_off_by_vlm_timeout(capsys):
+    with DripServer() as server:
+        start = time.monotonic()
+        err = assert_refused(capsys, ["classify-constraints", "--vlm-backend", "openai", "--vlm-base-url",
+                                      server.base_url, "--vlm-timeout", "2", "--vlm-attempts", "2", "mug"],
+                             "no complete answer within 2.0 s")
+        elapsed = time.monotonic() - start
+    assert "too slow" in err and elapsed < 20, elapsed
+
+
+def test_the_episode_budget_bounds_a_query_not_only_the_next_one():
+    with DripServer() as server:
+        inner = OpenAIBackend(model="m", base_url=server.base_url, timeout_s=30.0, attempts=3, backoff_s=0.01)
+        guard = GuardedBackend(inner, episode_budget_s=1.5)
+        guard.new_episode()
+        start = time.monotonic()
+        with pytest.raises(BackendError):
+            guard.assign_constraints(ConstraintQuery(names=NAMES))
+        elapsed = time.monotonic() - start
+        with pytest.raises(BackendError, match="episode time budget"):  # the next query is not even sent
+            guard.assign_constraints(ConstraintQuery(names=NAMES))
+    assert elapsed < 10, elapsed  # 1.5 s of budget; the 30 s timeout x 3 attempts would take 90 s
+
+
+def test_eval_against_a_dripping_server_finishes_on_the_fallback(capsys, tmp_path):
+    policy = make_policy(tmp_path / "k2.safetensors", 2)
+    out = tmp_path / "ev"
+    with DripServer() as server:
+        start = time.monotonic()
+        code, text, err = run(capsys, ["eval", "--policy", policy, "--n-objects", "3", "--selector", "dynamic-vlm",
+                                       "--vlm-backend", "openai", "--vlm-base-url", server.base_url, "--vlm-timeout",
+                                       "2", "--vlm-max-failures", "1", "--max-episode-steps", "40", "--episodes", "1",
+                                       "--workers", "1", "--no-progress", "--out", out])
+        elapsed = time.monotonic() - start
+    assert code == 0, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["vlm_breaker_open_episodes"] == 1 and summary["selector_queries"]["object_fallbacks"] >= 1
+    assert elapsed < 90, elapsed
+
+
+@pytest.mark.parametrize("body,message", [
+    (json.dumps(completion("[" * 100_000 + "]" * 100_000)).encode(), "nests 100,000 levels deep"),
+    (b'{"choices": ' + b"[" * 100_000 + b"]" * 100_000 + b"}", "nests 100,001 levels deep"),
+    (b'{"choices": [{"message": {"content": "{}"}}], "x": NaN}', "NaN"),
+    (b" " * 5_000_000, "more than the 4,000,000"),
+], ids=["deep-answer", "deep-reply", "nan-reply", "huge-reply"])
+def test_a_deep_or_huge_vlm_reply_falls_back_like_any_bad_answer(body, message, caplog):
+    with FakeServer(lambda req: (200, body, "application/json")) as server:
+        backend = OpenAIBackend(model="m", base_url=server.base_url, timeout_s=5.0, attempts=1)
+        with pytest.raises(BackendError, match=message):
+            backend.assign_constraints(ConstraintQuery(names=NAMES))
+        selector = DynamicVLMSelector(backend, query_interval=4)
+        v = view()
+        selector.reset(v, 2)
+        assert selector.select(v, 2) == dynamic_knn(v, 2) and selector.stats.fallbacks == 1
+        assert VLMConstraintSelector(backend).assign(v) == ["no_contact"] * len(NAMES)
 
 
 def test_a_cache_entry_nested_deep_is_a_miss(tmp_path):
@@ -139,6 +206,40 @@ def _ray_commands(tmp_path: Path, address: str) -> dict[str, list]:
                      address, "--out", tmp_path / "out"],
             "train": ["train", "--backend", "ray", "--address", address, "--out", tmp_path / "out", "--no-progress"],
             "sweep": ["sweep", sweep, "--backend", "ray", "--address", address, "--out", tmp_path / "out"]}
+
+
+@pytest.mark.parametrize("command", ["eval", "train", "sweep"])
+def test_a_closed_ray_address_fails_within_seconds(capsys, tmp_path, command):
+    address = f"127.0.0.1:{_closed_port()}"
+    start = time.monotonic()
+    assert_refused(capsys, _ray_commands(tmp_path, address)[command],
+                   f"--address {address}: cannot reach a Ray cluster there")
+    assert time.monotonic() - start < 20 and not (tmp_path / "out").exists()
+
+
+def test_a_port_that_never_answers_is_not_taken_for_a_ray_cluster(capsys, tmp_path):
+    with SilentPort() as port:
+        start = time.monotonic()
+        assert_refused(capsys, _ray_commands(tmp_path, port.address)["eval"], "no Ray cluster answered within 5 s")
+        elapsed = time.monotonic() - start
+    assert elapsed < 20 and not (tmp_path / "out").exists()  # ray.init alone waits minutes here
+
+
+def test_a_port_of_another_service_is_not_a_ray_cluster(capsys, tmp_path):
+    with FakeServer(json_reply(pick_last_k)) as server:  # an HTTP/1 server: no gRPC
+        address = server.base_url.split("//")[1].split("/")[0]
+        assert_refused(capsys, _ray_commands(tmp_path, address)["train"], "is not a Ray cluster (it does not speak gRPC)")
+
+
+@pytest.mark.parametrize("address", ["nohost", "host:port", "10.0.0.1:99999", "a b:1", "http://x:1/y"])
+def test_a_malformed_ray_address_is_refused(capsys, tmp_path, address):
+    assert_refused(capsys, _ray_commands(tmp_path, address)["eval"], "is not a Ray cluster address")
+
+
+def test_ray_address_from_the_environment_is_checked_too(capsys, monkeypatch, tmp_path):
+    monkeypatch.setenv("RAY_ADDRESS", f"127.0.0.1:{_closed_port()}")
+    argv = [a for a in _ray_commands(tmp_path, "x")["eval"] if a not in ("--address", "x")]
+    assert_refused(capsys, argv, "RAY_ADDRESS 127.0.0.1:")
 
 
 # ------------------------------------------------------------------------------------------ 6. secrets

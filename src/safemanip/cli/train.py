@@ -60,7 +60,8 @@ FLAGS = {
     "--selection-radius": ("selection_radius", float_in(0, 10, lo_open=True), "dynamic-radius: radius around the "
                                                                               "held box [m] (default 0.35)"),
     "--backend": ("backend", None, "rollout workers as local processes or Ray actors (default local)"),
-    "--address": ("address", None, "Ray cluster address HOST:PORT for --backend ray (default: a local Ray instance)"),
+    "--address": ("address", None, "Ray cluster address HOST:PORT for --backend ray (default: RAY_ADDRESS, else a local "
+                                   "Ray instance); never read from a config file"),
     "--workers": ("n_collectors", int_in(1, 64), "rollout workers: processes or Ray actors (default 1)"),
 }
 CHOICES = {"--algorithm": ["rarl", "vanilla"], "--constraints": ["conservative", "all"], "--embodiment": ["panda", "hand"],
@@ -106,6 +107,12 @@ def _cmd_train(args) -> int:
         problems = check_output_dir(cfg.out_dir)
         if problems:
             raise CliError(problems[0])
+    if cfg.backend == "ray":  # a cluster that does not answer: refused in seconds, before the run folder is touched
+        from safemanip.util.procs import check_ray_address, ray_address
+
+        address, source = ray_address(cfg.address)
+        if address:
+            check_ray_address(address, source)
     command = "safemanip " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     run_dir = train(cfg, resume=bool(args.resume), progress=not args.no_progress, command=command, run_dir=run_dir)
     summary = (run_dir / "summary.json").read_text()

@@ -134,6 +134,21 @@ def _policy_problems(req: EvalRequest, problems: list[str]):
     return actor.arrays(), meta
 
 
+def ray_address_problems(flag: str | None) -> list[str]:
+    """The cluster to join (--address, else RAY_ADDRESS) checked within seconds: a malformed address, or one where
+    no Ray cluster answers, is a problem here rather than a ``ray.init`` that waits for minutes."""
+    from safemanip.util.procs import ClusterUnreachable, check_ray_address, ray_address
+
+    address, source = ray_address(flag)
+    if not address:
+        return []
+    try:
+        check_ray_address(address, source)
+    except ClusterUnreachable as err:
+        return [str(err)]
+    return []
+
+
 VLM_FIELDS = ("vlm_backend", "vlm_model", "vlm_base_url", "vlm_cache", "vlm_cache_only", "vlm_timeout",
               "vlm_episode_budget", "vlm_run_budget", "vlm_max_failures")
 """The EvalRequest fields of the semantic backend (eval and sweep take the same flags)."""
@@ -192,6 +207,7 @@ def prepare(req: EvalRequest) -> Prepared:
             import ray  # noqa: F401
         except ImportError:
             problems.append("--backend ray needs Ray: pip install 'ray[default]' (or use --backend local)")
+        problems += ray_address_problems(req.address)
     from safemanip.scene.placement import LAYOUTS
 
     if req.layout is not None and req.layout not in LAYOUTS:

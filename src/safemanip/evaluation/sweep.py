@@ -389,8 +389,12 @@ def run_sweep(name: str, *, episodes: int | None = None, out: str | None = None,
         if problems:
             raise SweepError("; ".join(problems))
     problems = check_output_dir(root)
+    if backend == "ray" and not render_only:
+        from safemanip.evaluation.harness import ray_address_problems
+
+        problems += ray_address_problems(address)
     if problems:
-        raise SweepError(problems[0])
+        raise SweepError("; ".join(problems))
     status = {"ran": [], "done": [], "skipped": [], "failed": [], "interrupted": None}
     with OutputLock(root):
         if not render_only:
