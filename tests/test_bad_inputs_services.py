@@ -243,6 +243,34 @@ def test_ray_address_from_the_environment_is_checked_too(capsys, monkeypatch, tm
 
 
 # ------------------------------------------------------------------------------------------ 6. secrets
+@pytest.mark.parametrize("text", [
+    f"echo: {SECRET.upper()}", f"echo: {SECRET.lower()}", f"API-KEY: {SECRET}", f"apiKey={SECRET}",
+    f'"X-Api-Key": "{SECRET}"', f"Openai_Api_Key={SECRET}", f"api key: {SECRET}", f"AUTHORIZATION: BEARER {SECRET}",
+    f"https://bob:{SECRET}@example.org/v1",
+])
+def test_the_key_is_redacted_in_any_case_variant(monkeypatch, text):
+    from safemanip.util.secrets import redact
+
+    monkeypatch.setenv("OPENAI_API_KEY", SECRET)
+    out = redact(text)
+    assert SECRET.lower() not in out.lower() and "[redacted]" in out
+
+
+def test_the_key_under_another_spelling_of_its_variable_is_redacted(monkeypatch):
+    from safemanip.util.secrets import redact
+
+    monkeypatch.delenv("OPENAI_API_KEY", raising=False)
+    monkeypatch.setenv("openai_api_key", "plainword-42")
+    assert redact("the server said PLAINWORD-42") == "the server said [redacted]"
+
+
+def test_a_key_echoed_in_another_case_never_reaches_the_message(monkeypatch):
+    monkeypatch.setenv("OPENAI_API_KEY", SECRET)
+    body = json.dumps({"error": {"message": f"bad key {SECRET.upper()} / {SECRET.lower()}"}}).encode()
+    with FakeServer(lambda req: (400, body, "application/json")) as server:
+        with pytest.raises(BackendError) as err:
+            OpenAIBackend(model="m", base_url=server.base_url, attempts=1).assign_constraints(ConstraintQuery(names=NAMES))
+    assert "HTTP 400" in str(err.value) and SECRET.lower() not in str(err.value).lower()
 
 
 def _echoing_answer(req: dict) -> dict:
@@ -251,6 +279,56 @@ def _echoing_answer(req: dict) -> dict:
         return {**pick_last_k(req), "explanation": f"as told by {SECRET.upper()}"}
     labels = schema_of(req)["properties"]["constraints"]["required"]
     return {"constraints": {lbl: {"explanation": f"key {SECRET.upper()}", "constraint": "no_contact"} for lbl in labels}}
+
+
+def test_the_key_is_never_stored_in_the_vlm_cache(monkeypatch, tmp_path):
+    monkeypatch.setenv("OPENAI_API_KEY", SECRET)
+    with FakeServer(json_reply(_echoing_answer)) as server:
+        backend = OpenAIBackend(model="m", base_url=server.base_url, cache=ResponseCache(tmp_path))
+        got = backend.assign_constraints(ConstraintQuery(names=NAMES))
+        answer = backend.select_objects(ObjectQuery(view=view(), k=2, order=[0, 1, 2]))
+    stored = "".join(p.read_text() for p in tmp_path.rglob("*.json"))
+    assert stored and SECRET.lower() not in stored.lower() and "[redacted]" in stored
+    assert SECRET.lower() not in (json.dumps(got.raw) + answer.explanation).lower()
+
+
+def test_credentials_in_the_base_url_are_masked_in_every_message(capsys, monkeypatch):
+    monkeypatch.setenv("OPENAI_API_KEY", SECRET)
+    url = f"http://alice:hunter2@127.0.0.1:{_closed_port()}/v1"
+    code, out, err = run(capsys, ["classify-constraints", "--vlm-backend", "openai", "--vlm-base-url", url,
+                                  "--vlm-attempts", "1", "--vlm-timeout", "2", "mug"])
+    assert code == 2 and "cannot reach http://[redacted]@127.0.0.1" in err
+    assert "hunter2" not in out + err and "alice" not in out + err
+    backend = OpenAIBackend(model="m", base_url=url)
+    assert "hunter2" not in repr(backend) + json.dumps(backend.describe())
+
+
+def test_eval_results_never_hold_url_credentials(capsys, tmp_path):
+    policy = make_policy(tmp_path / "k2.safetensors", 2)
+    out = tmp_path / "ev"
+    url = f"http://alice:hunter2@127.0.0.1:{_closed_port()}/v1"
+    code, text, err = run(capsys, ["eval", "--policy", policy, "--n-objects", "3", "--selector", "dynamic-vlm",
+                                   "--vlm-backend", "openai", "--vlm-base-url", url, "--vlm-timeout", "2",
+                                   "--vlm-max-failures", "1", "--max-episode-steps", "20", "--episodes", "1",
+                                   "--workers", "1", "--no-progress", "--json", "--out", out])
+    assert code == 0, err
+    written = (out / "summary.json").read_text()
+    assert "hunter2" not in written + text + err and "[redacted]@127.0.0.1" in written
+
+
+def test_render_query_output_holds_no_key_and_no_url_credentials(capsys, monkeypatch, tmp_path):
+    monkeypatch.setenv("OPENAI_API_KEY", SECRET)
+    with FakeServer(json_reply(_echoing_answer)) as server:
+        url = server.base_url.replace("http://", "http://alice:hunter2@")
+        code, out, err = run(capsys, ["render-query", "--seed", "4", "--steps", "4", "--vlm-backend", "openai",
+                                      "--vlm-base-url", url, "--vlm-model", "m", "--out", tmp_path / "q"])
+    if code == 2 and "renderer" in err:
+        pytest.skip(f"no offscreen OpenGL here: {err}")
+    assert code == 0, err
+    files = "".join(p.read_text() for p in (tmp_path / "q").glob("*.*") if p.suffix in (".json", ".txt"))
+    everything = (out + err + files).lower()
+    assert SECRET.lower() not in everything and "hunter2" not in everything
+    assert "[redacted]" in files  # the echoed key and the URL's credentials were there, and are masked
 
 
 # ------------------------------------------------------------------------------------------ 7. workers

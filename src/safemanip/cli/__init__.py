@@ -18,7 +18,9 @@ class Parser(argparse.ArgumentParser):
     to find help) on stderr, exit code 2."""
 
     def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message} (see: {self.prog} --help)\n")
+        from safemanip.util.secrets import redact
+
+        self.exit(2, f"{self.prog}: error: {redact(message)} (see: {self.prog} --help)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -42,6 +44,7 @@ def expected_errors() -> tuple[type[BaseException], ...]:
 
 def main(argv: list[str] | None = None) -> int:
     from safemanip.util.procs import Interrupted
+    from safemanip.util.secrets import redact
 
     parser = build_parser()
     try:
@@ -56,6 +59,6 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"safemanip {args.command}: interrupted", file=sys.stderr)
         return 130
-    except expected_errors() as err:  # say what to change, no traceback
-        print(f"safemanip {args.command}: error: {err}", file=sys.stderr)
+    except expected_errors() as err:  # say what to change, no traceback (and never a credential)
+        print(f"safemanip {args.command}: error: {redact(err)}", file=sys.stderr)
         return 2

@@ -36,6 +36,7 @@ from safemanip.selection.selectors import DEFAULT_INTERVAL
 from safemanip.semantics.base import VLM_BACKENDS
 from safemanip.util.files import OutputLock, atomic_open, atomic_write_text, check_output_dir
 from safemanip.util.procs import stop_on_signals
+from safemanip.util.secrets import mask_url
 
 JUDGES = {"ground-truth": "ground_truth", "conservative": "conservative"}
 SEED_STRIDE = 100_000
@@ -353,7 +354,7 @@ def describe(prep: Prepared) -> dict:
             "policy_constraints": spec.policy_constraints, "n_objects": prep.n_objects, "semantics": req.semantics,
             "selector": spec.selector, "constraints": spec.constraints, "judge": req.judge, "pad": spec.pad,
             "interval": spec.options.interval, "vlm": ({"backend": spec.options.vlm_backend, "model": req.vlm_model,
-                                                         "base_url": req.vlm_base_url, "cache": req.vlm_cache,
+                                                         "base_url": mask_url(req.vlm_base_url), "cache": req.vlm_cache,
                                                          "cache_only": req.vlm_cache_only}
                                                         if spec.selector in USES_VLM or spec.constraints in USES_VLM
                                                         else None),
@@ -445,7 +446,9 @@ def _run_prepared(req: EvalRequest, prep: Prepared) -> dict:
                                                "episodes_requested": len(prep.seeds)}
     wall = time.perf_counter() - start
     desc = describe(prep)
-    summary = {"request": {f.name: getattr(req, f.name) for f in fields(req)}, "eval": desc,
+    request = {f.name: getattr(req, f.name) for f in fields(req)}
+    request["vlm_base_url"] = mask_url(req.vlm_base_url)
+    summary = {"request": request, "eval": desc,
                "policy_meta": {k: v for k, v in prep.meta.items() if k not in ("train_config",)},
                **summarize(records), "wall_s": round(wall, 2), "episodes_per_s": round(len(records) / max(wall, 1e-9), 2),
                "notes": prep.notes, "interrupted": interrupted}
