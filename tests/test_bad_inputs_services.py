@@ -356,3 +356,74 @@ def _journal_seeds(folder: Path) -> set[int]:
     return seeds
 
 
+@pytest.mark.slow
+def test_a_killed_eval_worker_loses_no_finished_episode(tmp_path):
+    """Two workers, one chunk of 200 episodes each; one is killed -9 after it finished some episodes of its chunk.
+    Every episode finished before the kill is written, the run says which seeds failed and exits with 1."""
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    out = tmp_path / "ev"
+    proc = subprocess.Popen([sys.executable, "-m", "safemanip.cli", "eval", "--policy", "rarl-k2-conservative",
+                             "--episodes", "400", "--workers", "2", "--chunk-size", "200", "--no-progress", "--out", out],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+                            env={**ENV, "TMPDIR": str(scratch)}, start_new_session=True)
+    try:
+        deadline, victim = time.time() + 240, None
+        while time.time() < deadline and victim is None:
+            for journal in scratch.glob("safemanip-eval-*/worker-*.jsonl"):
+                if journal.read_text().count("\n") >= 3:
+                    victim = int(journal.stem.split("-")[1])
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.2)
+        assert victim is not None, "no worker finished three episodes within 240 s"
+        finished = _journal_seeds(scratch)
+        os.kill(victim, signal.SIGKILL)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 1, stderr[-2000:]
+    assert "Traceback" not in stderr and "error: a worker process was killed by SIGKILL" in stderr
+    with open(out / "episodes.csv", newline="") as f:
+        written = {int(r["seed"]) for r in csv.DictReader(f)}
+    summary = json.loads((out / "summary.json").read_text())
+    assert finished <= written  # the victim's own finished episodes too: its chunk never returned
+    assert summary["episodes"] == len(written) < 400
+    assert sorted(summary["failed"]["seeds_failed"]) == sorted(set(range(400)) - written)
+    assert "rerun the evaluation" in stderr and not list(scratch.glob("safemanip-eval-*"))
+
+
+@pytest.mark.slow
+def test_a_killed_rollout_worker_ends_train_with_one_line_and_the_resume_command(tmp_path):
+    from safemanip.rl.checkpoint import find_checkpoint
+    from test_processes import TINY
+
+    cfg = tmp_path / "tiny.json"
+    cfg.write_text(json.dumps({**TINY, "minutes": 2.0, "total_env_steps": 10**7}))
+    run_dir = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "safemanip.cli", "train", "--config", cfg, "--out", run_dir,
+                             "--no-progress"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+                            env=ENV, start_new_session=True)
+    try:
+        deadline, worker = time.time() + 120, None
+        while time.time() < deadline and worker is None:
+            assert proc.poll() is None, proc.communicate()
+            if (run_dir / "scalars.csv").exists():  # the training loop runs
+                workers = [p for p in _descendants(proc.pid) if "spawn_main" in _cmdline(p)]
+                worker = workers[0] if workers else None
+            time.sleep(0.2)
+        assert worker is not None, "no rollout worker within 120 s"
+        os.kill(worker, signal.SIGKILL)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 1, stdout[-2000:] + stderr[-2000:]
+    errors = [line for line in stderr.splitlines() if line.startswith("safemanip train: error:")]
+    assert len(errors) == 1, stderr[-2000:]
+    assert errors[0].startswith("safemanip train: error: a rollout worker was killed by SIGKILL; the run stopped after ")
+    assert errors[0].endswith(f"continue with: safemanip train --resume {run_dir}")
+    assert "Traceback" not in stdout + stderr
+    assert find_checkpoint(run_dir) is not None and (run_dir / "policy.safetensors").exists()
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["worker_failed"] == "a rollout worker was killed by SIGKILL"

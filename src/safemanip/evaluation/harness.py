@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from safemanip.evaluation.episode import CATEGORIES, CATEGORY_LABELS, SAFETY_VIOLATIONS
-from safemanip.evaluation.parallel import BACKENDS, EvalSpec, PartialRun, run_episodes
+from safemanip.evaluation.parallel import BACKENDS, EvalSpec, PartialRun, WorkerFailure, run_episodes
 from safemanip.evaluation.stats import rate_line, wilson_interval
 from safemanip.evaluation.registry import CONSTRAINT_SELECTORS, OBJECT_SELECTORS, USES_VLM, SelectorOptions
 from safemanip.selection.selectors import DEFAULT_INTERVAL
@@ -386,6 +386,16 @@ def format_summary(summary: dict, title: str) -> str:
     return "\n".join(lines)
 
 
+def failure_line(summary: dict, out: str | None) -> str:
+    """One line on a run that lost episodes to a worker failure: what failed, what was kept, what to do."""
+    failed = summary["failed"]
+    seeds = failed["seeds_failed"]
+    shown = ", ".join(map(str, seeds[:10])) + (f" and {len(seeds) - 10} more" if len(seeds) > 10 else "")
+    return (f"{failed['reason']}: {summary['episodes']} of {failed['episodes_requested']} episodes finished"
+            + (f" and are written to {out}" if out else "") + f"; {failed['episodes_failed']} did not (seeds {shown}); "
+            f"rerun the evaluation for complete results")
+
+
 def title_of(desc: dict) -> str:
     scene = f"N={desc['n_objects']}" + (f" ({desc['semantics']})" if desc["semantics"] else "")
     return (f"{desc['policy']}: {desc['algorithm']} k={desc['k']} ({desc['policy_constraints']}) | {scene}, "
@@ -436,7 +446,7 @@ def evaluate(req: EvalRequest) -> dict:
 
 def _run_prepared(req: EvalRequest, prep: Prepared) -> dict:
     start = time.perf_counter()
-    interrupted = None
+    interrupted = failed = None
     try:
         with stop_on_signals():
             records = run_episodes(prep.spec, prep.seeds, workers=req.workers, backend=req.backend,
@@ -444,6 +454,9 @@ def _run_prepared(req: EvalRequest, prep: Prepared) -> dict:
     except PartialRun as stop:
         records, interrupted = stop.records, {"signal": signal.Signals(stop.signum).name, "signum": stop.signum,
                                                "episodes_requested": len(prep.seeds)}
+    except WorkerFailure as failure:  # the finished episodes are kept and written; the summary says which failed
+        records, failed = failure.records, {"reason": failure.reason, "episodes_requested": len(prep.seeds),
+                                            "episodes_failed": len(failure.missing), "seeds_failed": failure.missing}
     wall = time.perf_counter() - start
     desc = describe(prep)
     request = {f.name: getattr(req, f.name) for f in fields(req)}
@@ -451,13 +464,15 @@ def _run_prepared(req: EvalRequest, prep: Prepared) -> dict:
     summary = {"request": request, "eval": desc,
                "policy_meta": {k: v for k, v in prep.meta.items() if k not in ("train_config",)},
                **summarize(records), "wall_s": round(wall, 2), "episodes_per_s": round(len(records) / max(wall, 1e-9), 2),
-               "notes": prep.notes, "interrupted": interrupted}
+               "notes": prep.notes, "interrupted": interrupted, "failed": failed}
     if req.out:
         write_records(Path(req.out), records, summary)
     text = format_summary(summary, title_of(desc))
     if interrupted:
         text += (f"\ninterrupted by {interrupted['signal']}: {len(records)} of {len(prep.seeds)} episodes finished"
                  + (f" and written to {req.out}" if req.out else ""))
+    if failed:
+        text += f"\n{failure_line(summary, req.out)}"
     if prep.notes:
         text += "\n" + "\n".join(f"note: {n}" for n in prep.notes)
     return {"summary": summary, "records": records, "text": text}

@@ -469,6 +469,13 @@ def _run_cells(cfg, cells, root, status, workers, backend, address, progress, lo
         if report["summary"].get("interrupted"):  # a partial cell is not a result: redo it next time
             status["interrupted"] = report["summary"]["interrupted"]["signum"]
             return
+        if report["summary"].get("failed"):  # a worker died: the cell is incomplete, redone next time
+            from safemanip.evaluation.harness import failure_line
+
+            error = failure_line(report["summary"], req.out)
+            status["failed"].append({"cell": cell.id, "error": error})
+            log(f"{tag}: failed: {error}")
+            continue
         summary = {k: v for k, v in report["summary"].items() if k not in ("request", "policy_meta")}
         atomic_write_text(result_path, json.dumps({"cell": asdict(cell), "summary": summary}, indent=1))
         status["ran"].append(cell.id)

@@ -27,7 +27,7 @@ from safemanip.rl.learner import Learner
 from safemanip.rl.networks import actor_arrays
 from safemanip.rl.rollout import evaluate_actor
 from safemanip.util.files import OutputLock, atomic_write_text, check_output_dir, parse_json, read_json_file
-from safemanip.util.procs import stop_on_signals
+from safemanip.util.procs import WorkerDied, describe_exit, stop_on_signals
 
 EVAL_SEED_BASE = 1_000_000  # evaluation seeds are disjoint from every training seed
 SYNC_EVERY = 50  # learner updates between actor-weight broadcasts to the workers
@@ -323,7 +323,7 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
             save_policy(run_dir / "best.safetensors", actor_arrays(learner.actor),
                         policy_meta(cfg, obs_dim, act_dim, result, env_steps, updates, elapsed(), command))
 
-    interrupted = None
+    interrupted = worker_failed = None
     last_alive_check = start
     with stop_on_signals(raise_exc=False) as stopped:
         try:
@@ -341,9 +341,14 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
                         chunk, episodes = pool.get(0.05 if buffer.size < cfg.learning_starts and got == 0 else 0.0)
                     except queue.Empty:
                         break
+                    except WorkerDied as err:  # a Ray actor that died: reported by its call
+                        worker_failed = str(err)
+                        break
                     buffer.add_many(chunk)
                     recent_events.extend(e for e, _ in episodes)
                     got += 1
+                if worker_failed:
+                    break
                 env_steps = pool.env_steps
                 # ---- learn, at the configured update-to-data ratio
                 can_update = buffer.size >= cfg.learning_starts and \
@@ -367,8 +372,8 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
                 if now - last_alive_check >= 1.0:
                     dead = pool.dead()
                     if dead is not None:
-                        raise RuntimeError(f"rollout worker exited with code {dead}; the run stops (its "
-                                           f"last checkpoint is kept: safemanip train --resume {run_dir})")
+                        worker_failed = f"a rollout worker {describe_exit(dead)}"
+                        break
                     last_alive_check = now
                 # ---- log
                 if now - last_log >= cfg.log_every_s:
@@ -400,7 +405,9 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
             pool.close()
             if bar is not None:
                 bar.close()
-        if interrupted is None:
+        if worker_failed is not None:  # the learner and its buffer are whole: save them, then report
+            print(f"{worker_failed}: stopping; saving a checkpoint and the current policy (no final evaluation)")
+        elif interrupted is None:
             run_eval()
         else:
             print(f"{interrupted}: stopping; saving a checkpoint and the current policy (no final evaluation)")
@@ -410,11 +417,14 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
         log.close()
         summary = {"env_steps": env_steps, "updates": updates, "wall_s": round(elapsed(), 1),
                    "final_eval": last_eval_result, "best_eval": best, "interrupted": interrupted,
-                   "learner": learner.precision.as_dict()}
+                   "worker_failed": worker_failed, "learner": learner.precision.as_dict()}
         if (run_dir / "init_from.json").exists():  # whose networks this run started from: count its training too
             try:
                 summary["init_from"] = read_json_file(run_dir / "init_from.json", max_bytes=100_000)
             except (OSError, ValueError) as err:
                 summary["init_from"] = {"unreadable": str(err)[:200]}
         atomic_write_text(run_dir / "summary.json", json.dumps(summary, indent=1))
+    if worker_failed is not None:
+        raise WorkerDied(f"{worker_failed}; the run stopped after {env_steps} env steps and saved a checkpoint and its "
+                         f"policy in {run_dir}; continue with: safemanip train --resume {run_dir}")
     return run_dir
