@@ -224,9 +224,17 @@ class _PoolBroke(Exception):
 def _worker_exits(pool) -> str:
     from safemanip.util.procs import describe_exit
 
-    codes = [p.exitcode for p in list((getattr(pool, "_processes", None) or {}).values()) if p.exitcode not in (None, 0)]
-    # the pool itself sends SIGTERM to the other workers once one has died: report the one that died first
-    codes = [c for c in codes if c != -signal.SIGTERM] or codes
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    # the pool's own thread reaps the dead worker and sends SIGTERM to the others: wait (briefly) until the exit code
+    # it reaped is stored, and report the worker that died first, not the ones the pool ended
+    deadline = time.monotonic() + 2.0
+    while True:
+        codes = [c for c in (p.exitcode for p in processes) if c not in (None, 0)]
+        first = [c for c in codes if c != -signal.SIGTERM]
+        if first or time.monotonic() > deadline:
+            break
+        time.sleep(0.05)
+    codes = first or codes
     return f"a worker process {describe_exit(codes[0])}" if codes else "a worker process died"
 
 
