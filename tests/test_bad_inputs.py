@@ -235,6 +235,7 @@ TRAIN = ["train", "--no-progress"]
     (["--k", "4", "--scene-objects-min", "5"], "scene_objects_min must be in 1..4"),
     (["--selector", "dynamic-radius"], "use network 'set'"),
     (["--address", "10.0.0.1:6379"], "address only applies to backend 'ray'"),
+    (["--backend", "ray", "--address", "a b"], "address must be a Ray cluster address"),
     (["--object-size", "yes"], "unrecognized arguments: yes"),
     (["--init-from", "no/such/run"], "no complete checkpoint there"),
 ])
@@ -269,7 +270,7 @@ EVIL = {"env_factory": "subprocess:getoutput", "extra_env_kwargs": {"cmd": "touc
     ({"device": "cuda:x"}, "device must be one of"),
     ({"set_embed": 10**6}, "set_embed must be at most"),
     ({"selection_radius": -1.0}, "selection_radius in (0, 10.0] m"),
-    ({"backend": "ray", "address": "a b"}, "address must be a Ray cluster address"),
+    ({"backend": "ray", "address": "a b"}, "a config file may not name a Ray cluster"),  # flag or RAY_ADDRESS only
 ])
 def test_train_refuses_bad_configs(capsys, tmp_path, config, message):
     marker = tmp_path / "pwned"

@@ -126,12 +126,12 @@ def test_cells_that_query_the_semantic_backend_go_stale_with_its_version(tmp_pat
     assert vlm_cell.vlm == f"semantic:{DEFAULT_EXAMPLES}" and plain_cell.vlm is None
     path = tmp_path / "cell.json"
     old = {**asdict(vlm_cell), "vlm": "semantic:class_examples_v2.json"}
-    path.write_text(json.dumps({"cell": old, "summary": {}}))
+    path.write_text(json.dumps({"cell": old, "summary": _fake_summary(0.5)}))
     assert not _done(path, vlm_cell)  # a result of an older classifier is redone
     legacy = {k: v for k, v in asdict(plain_cell).items() if k != "vlm"}  # stored before the field existed
-    path.write_text(json.dumps({"cell": legacy, "summary": {}}))
+    path.write_text(json.dumps({"cell": legacy, "summary": _fake_summary(0.5)}))
     assert _done(path, plain_cell)
-    path.write_text(json.dumps({"cell": {k: v for k, v in asdict(vlm_cell).items() if k != "vlm"}, "summary": {}}))
+    path.write_text(json.dumps({"cell": {k: v for k, v in asdict(vlm_cell).items() if k != "vlm"}, "summary": _fake_summary(0.5)}))
     assert not _done(path, vlm_cell)
 
 

@@ -3,8 +3,9 @@
 Sub-commands are registered by the modules of this package: ``train`` (``cli/train.py``), ``eval`` and
 ``sweep`` (``cli/evaluate.py``), ``classify-constraints``, ``constraint-matrix`` and ``render-query``
 (``cli/semantics.py``), ``demo`` and ``catalog`` (``cli/demo.py``). Expected failures (a bad flag,
-config, file or server) are one line on stderr and exit code 2; SIGINT/SIGTERM end a command with
-128 + the signal number after saving what was finished.
+config, file or server) are one line on stderr and exit code 2 (credentials redacted); a worker process that
+died ends the run with one line and exit code 1 after saving what was finished; SIGINT/SIGTERM end a command
+with 128 + the signal number after saving what was finished.
 """
 
 from __future__ import annotations
@@ -18,7 +19,9 @@ class Parser(argparse.ArgumentParser):
     to find help) on stderr, exit code 2."""
 
     def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message} (see: {self.prog} --help)\n")
+        from safemanip.util.secrets import redact
+
+        self.exit(2, f"{self.prog}: error: {redact(message)} (see: {self.prog} --help)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -41,7 +44,8 @@ def expected_errors() -> tuple[type[BaseException], ...]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from safemanip.util.procs import Interrupted
+    from safemanip.util.procs import Interrupted, WorkerDied
+    from safemanip.util.secrets import redact
 
     parser = build_parser()
     try:
@@ -56,6 +60,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"safemanip {args.command}: interrupted", file=sys.stderr)
         return 130
-    except expected_errors() as err:  # say what to change, no traceback
-        print(f"safemanip {args.command}: error: {err}", file=sys.stderr)
+    except WorkerDied as err:  # the run stopped and kept what was finished; the message says how to go on
+        print(f"safemanip {args.command}: error: {redact(err)}", file=sys.stderr)
+        return err.exit_code
+    except expected_errors() as err:  # say what to change, no traceback (and never a credential)
+        print(f"safemanip {args.command}: error: {redact(err)}", file=sys.stderr)
         return 2

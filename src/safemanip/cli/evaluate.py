@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 from safemanip.cli.common import CliError, add_compute_backend, add_vlm_options, int_in
 from safemanip.scene.placement import LAYOUTS
@@ -51,6 +52,11 @@ def _cmd_eval(args) -> int:
     if args.json:
         print(json.dumps({k: v for k, v in report["summary"].items() if k != "policy_meta"}, indent=1))
     stop = report["summary"].get("interrupted")
+    if report["summary"].get("failed"):  # finished episodes are written; the run is incomplete
+        from safemanip.evaluation.harness import failure_line
+
+        print(f"safemanip eval: error: {failure_line(report['summary'], args.out)}", file=sys.stderr)
+        return 1
     return 128 + stop["signum"] if stop else 0
 
 

@@ -60,7 +60,8 @@ FLAGS = {
     "--selection-radius": ("selection_radius", float_in(0, 10, lo_open=True), "dynamic-radius: radius around the "
                                                                               "held box [m] (default 0.35)"),
     "--backend": ("backend", None, "rollout workers as local processes or Ray actors (default local)"),
-    "--address": ("address", None, "Ray cluster address HOST:PORT for --backend ray (default: a local Ray instance)"),
+    "--address": ("address", None, "Ray cluster address HOST:PORT for --backend ray (default: RAY_ADDRESS, else a local "
+                                   "Ray instance); never read from a config file"),
     "--workers": ("n_collectors", int_in(1, 64), "rollout workers: processes or Ray actors (default 1)"),
 }
 CHOICES = {"--algorithm": ["rarl", "vanilla"], "--constraints": ["conservative", "all"], "--embodiment": ["panda", "hand"],
@@ -71,7 +72,7 @@ CHOICES = {"--algorithm": ["rarl", "vanilla"], "--constraints": ["conservative",
 
 def _cmd_train(args) -> int:
     import safemanip.selection.training_env  # noqa: F401  registers the selection-aware training env
-    from safemanip.rl.config import TrainConfig
+    from safemanip.rl.config import TrainConfig, load_run_config
     from safemanip.rl.train import train
     from safemanip.util.files import check_output_dir
 
@@ -84,15 +85,21 @@ def _cmd_train(args) -> int:
             raise CliError(f"--resume {args.resume}: no config.json there; is it a run folder?")
         if args.config:
             raise CliError("--resume uses the run's own config.json; drop --config")
-        cfg = TrainConfig.from_file(run_dir / "config.json")
+        cfg, dropped = load_run_config(run_dir / "config.json")
+        if dropped is not None:
+            print(f"safemanip train: note: {run_dir / 'config.json'} records a Ray cluster address ({dropped!r}); it is "
+                  f"ignored: the address comes from --address or RAY_ADDRESS only", file=sys.stderr)
         if "out_dir" in given and Path(given.pop("out_dir")).resolve() != run_dir.resolve():
             raise CliError(f"--resume writes into {run_dir}; --out names another folder. Copy the run folder there "
                            f"and resume the copy instead")
+        address = given.pop("address", None)  # where the workers run, not a setting of the run: allowed
         conflicts = [f"{flag} {getattr(args, field)} (the run has {getattr(cfg, field)!r})"
                      for flag, (field, _, _) in FLAGS.items() if field in given and given[field] != getattr(cfg, field)]
         if conflicts:
             raise CliError(f"--resume continues {run_dir} with its own settings; these flags differ from them: "
                            f"{'; '.join(conflicts)}. Drop them, or start a new run with --out")
+        if address is not None:
+            cfg = TrainConfig.from_dict({**cfg.__dict__, "address": address})
     else:
         run_dir = None
         base = TrainConfig.from_file(args.config).__dict__ if args.config else {}
@@ -100,6 +107,12 @@ def _cmd_train(args) -> int:
         problems = check_output_dir(cfg.out_dir)
         if problems:
             raise CliError(problems[0])
+    if cfg.backend == "ray":  # a cluster that does not answer: refused in seconds, before the run folder is touched
+        from safemanip.util.procs import check_ray_address, ray_address
+
+        address, source = ray_address(cfg.address)
+        if address:
+            check_ray_address(address, source)
     command = "safemanip " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     run_dir = train(cfg, resume=bool(args.resume), progress=not args.no_progress, command=command, run_dir=run_dir)
     summary = (run_dir / "summary.json").read_text()

@@ -29,13 +29,14 @@ from pathlib import Path
 import numpy as np
 
 from safemanip.evaluation.episode import CATEGORIES, CATEGORY_LABELS, SAFETY_VIOLATIONS
-from safemanip.evaluation.parallel import BACKENDS, EvalSpec, PartialRun, run_episodes
+from safemanip.evaluation.parallel import BACKENDS, EvalSpec, PartialRun, WorkerFailure, run_episodes
 from safemanip.evaluation.stats import rate_line, wilson_interval
 from safemanip.evaluation.registry import CONSTRAINT_SELECTORS, OBJECT_SELECTORS, USES_VLM, SelectorOptions
 from safemanip.selection.selectors import DEFAULT_INTERVAL
 from safemanip.semantics.base import VLM_BACKENDS
 from safemanip.util.files import OutputLock, atomic_open, atomic_write_text, check_output_dir
 from safemanip.util.procs import stop_on_signals
+from safemanip.util.secrets import mask_url
 
 JUDGES = {"ground-truth": "ground_truth", "conservative": "conservative"}
 SEED_STRIDE = 100_000
@@ -134,6 +135,21 @@ def _policy_problems(req: EvalRequest, problems: list[str]):
     return actor.arrays(), meta
 
 
+def ray_address_problems(flag: str | None) -> list[str]:
+    """The cluster to join (--address, else RAY_ADDRESS) checked within seconds: a malformed address, or one where
+    no Ray cluster answers, is a problem here rather than a ``ray.init`` that waits for minutes."""
+    from safemanip.util.procs import ClusterUnreachable, check_ray_address, ray_address
+
+    address, source = ray_address(flag)
+    if not address:
+        return []
+    try:
+        check_ray_address(address, source)
+    except ClusterUnreachable as err:
+        return [str(err)]
+    return []
+
+
 VLM_FIELDS = ("vlm_backend", "vlm_model", "vlm_base_url", "vlm_cache", "vlm_cache_only", "vlm_timeout",
               "vlm_episode_budget", "vlm_run_budget", "vlm_max_failures")
 """The EvalRequest fields of the semantic backend (eval and sweep take the same flags)."""
@@ -192,6 +208,7 @@ def prepare(req: EvalRequest) -> Prepared:
             import ray  # noqa: F401
         except ImportError:
             problems.append("--backend ray needs Ray: pip install 'ray[default]' (or use --backend local)")
+        problems += ray_address_problems(req.address)
     from safemanip.scene.placement import LAYOUTS
 
     if req.layout is not None and req.layout not in LAYOUTS:
@@ -337,7 +354,7 @@ def describe(prep: Prepared) -> dict:
             "policy_constraints": spec.policy_constraints, "n_objects": prep.n_objects, "semantics": req.semantics,
             "selector": spec.selector, "constraints": spec.constraints, "judge": req.judge, "pad": spec.pad,
             "interval": spec.options.interval, "vlm": ({"backend": spec.options.vlm_backend, "model": req.vlm_model,
-                                                         "base_url": req.vlm_base_url, "cache": req.vlm_cache,
+                                                         "base_url": mask_url(req.vlm_base_url), "cache": req.vlm_cache,
                                                          "cache_only": req.vlm_cache_only}
                                                         if spec.selector in USES_VLM or spec.constraints in USES_VLM
                                                         else None),
@@ -367,6 +384,16 @@ def format_summary(summary: dict, title: str) -> str:
         lines.append(f"VLM circuit breaker open (fallback selectors answered) in {summary['vlm_breaker_open_episodes']} "
                      f"of {n} episodes: the server failed repeatedly or a time budget ran out")
     return "\n".join(lines)
+
+
+def failure_line(summary: dict, out: str | None) -> str:
+    """One line on a run that lost episodes to a worker failure: what failed, what was kept, what to do."""
+    failed = summary["failed"]
+    seeds = failed["seeds_failed"]
+    shown = ", ".join(map(str, seeds[:10])) + (f" and {len(seeds) - 10} more" if len(seeds) > 10 else "")
+    return (f"{failed['reason']}: {summary['episodes']} of {failed['episodes_requested']} episodes finished"
+            + (f" and are written to {out}" if out else "") + f"; {failed['episodes_failed']} did not (seeds {shown}); "
+            f"rerun the evaluation for complete results")
 
 
 def title_of(desc: dict) -> str:
@@ -419,7 +446,7 @@ def evaluate(req: EvalRequest) -> dict:
 
 def _run_prepared(req: EvalRequest, prep: Prepared) -> dict:
     start = time.perf_counter()
-    interrupted = None
+    interrupted = failed = None
     try:
         with stop_on_signals():
             records = run_episodes(prep.spec, prep.seeds, workers=req.workers, backend=req.backend,
@@ -427,18 +454,25 @@ def _run_prepared(req: EvalRequest, prep: Prepared) -> dict:
     except PartialRun as stop:
         records, interrupted = stop.records, {"signal": signal.Signals(stop.signum).name, "signum": stop.signum,
                                                "episodes_requested": len(prep.seeds)}
+    except WorkerFailure as failure:  # the finished episodes are kept and written; the summary says which failed
+        records, failed = failure.records, {"reason": failure.reason, "episodes_requested": len(prep.seeds),
+                                            "episodes_failed": len(failure.missing), "seeds_failed": failure.missing}
     wall = time.perf_counter() - start
     desc = describe(prep)
-    summary = {"request": {f.name: getattr(req, f.name) for f in fields(req)}, "eval": desc,
+    request = {f.name: getattr(req, f.name) for f in fields(req)}
+    request["vlm_base_url"] = mask_url(req.vlm_base_url)
+    summary = {"request": request, "eval": desc,
                "policy_meta": {k: v for k, v in prep.meta.items() if k not in ("train_config",)},
                **summarize(records), "wall_s": round(wall, 2), "episodes_per_s": round(len(records) / max(wall, 1e-9), 2),
-               "notes": prep.notes, "interrupted": interrupted}
+               "notes": prep.notes, "interrupted": interrupted, "failed": failed}
     if req.out:
         write_records(Path(req.out), records, summary)
     text = format_summary(summary, title_of(desc))
     if interrupted:
         text += (f"\ninterrupted by {interrupted['signal']}: {len(records)} of {len(prep.seeds)} episodes finished"
                  + (f" and written to {req.out}" if req.out else ""))
+    if failed:
+        text += f"\n{failure_line(summary, req.out)}"
     if prep.notes:
         text += "\n" + "\n".join(f"note: {n}" for n in prep.notes)
     return {"summary": summary, "records": records, "text": text}

@@ -17,7 +17,10 @@ import contextlib
 import math
 import multiprocessing as mp
 import os
+import shutil
+import signal
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Iterator
@@ -63,8 +66,8 @@ def one_blas_thread() -> Iterator[None]:
         yield
 
 
-def run_chunk(spec: EvalSpec, seeds: list[int]) -> list[dict]:
-    """Records of the episodes with these seeds, in the order given."""
+def run_chunk(spec: EvalSpec, seeds: list[int], on_record: Callable[[dict], None] | None = None) -> list[dict]:
+    """Records of the episodes with these seeds, in the order given; ``on_record`` sees each as it finishes."""
     from safemanip.env.slide_out import SlideOutEnv
     from safemanip.evaluation.episode import run_episode
     from safemanip.selection.reducer import Reducer
@@ -80,7 +83,12 @@ def run_chunk(spec: EvalSpec, seeds: list[int]) -> list[dict]:
             osel = make_object_selector(spec.selector, spec.options)
             csel = make_constraint_selector(spec.constraints, spec.options)
             builder = EnvViewBuilder(camera=spec.camera)
-            return [run_episode(env, actor, reducer, osel, csel, s, builder=builder) for s in seeds]
+            records = []
+            for s in seeds:
+                records.append(run_episode(env, actor, reducer, osel, csel, s, builder=builder))
+                if on_record is not None:
+                    on_record(records[-1])
+            return records
         finally:
             env.close()
 
@@ -131,20 +139,57 @@ class PartialRun(Exception):
         self.records, self.signum = records, signum
 
 
+class WorkerFailure(Exception):
+    """A worker process died (killed, out of memory) or failed: the records of every episode finished before it,
+    in seed order (including those its own chunk finished), the seeds that did not finish, and why."""
+
+    def __init__(self, records: list[dict], missing: list[int], reason: str):
+        super().__init__(f"{reason}; {len(records)} episodes finished, {len(missing)} did not")
+        self.records, self.missing, self.reason = records, missing, reason
+
+
 _WORKER_SPEC: EvalSpec | None = None
+_WORKER_JOURNAL: str | None = None
 
 
-def _worker_init(parent_pid: int, spec: EvalSpec) -> None:
+def _worker_init(parent_pid: int, spec: EvalSpec, journal: str | None = None) -> None:
     """Pool worker start-up: die with the parent (kill -9 included) and keep the spec, so that tasks carry only
     their seeds. (A task holding the weights can fill the pipe to the workers; if they are then killed, the
-    pool's feeder thread blocks on that pipe for ever and so does the shutdown.)"""
-    global _WORKER_SPEC
+    pool's feeder thread blocks on that pipe for ever and so does the shutdown.) ``journal``: a folder where each
+    finished episode's record is appended at once, so that a worker killed mid-chunk loses none of them."""
+    global _WORKER_SPEC, _WORKER_JOURNAL
     die_with_parent(parent_pid)
-    _WORKER_SPEC = spec
+    _WORKER_SPEC, _WORKER_JOURNAL = spec, journal
 
 
 def _run_chunk_in_worker(seeds: list[int]) -> list[dict]:
-    return run_chunk(_WORKER_SPEC, seeds)
+    if _WORKER_JOURNAL is None:
+        return run_chunk(_WORKER_SPEC, seeds)
+    import json
+
+    with open(os.path.join(_WORKER_JOURNAL, f"worker-{os.getpid()}.jsonl"), "a", encoding="utf-8") as journal:
+        def keep(record: dict) -> None:
+            journal.write(json.dumps(record, default=float) + "\n")
+            journal.flush()  # in the kernel's hands: survives a SIGKILL of this process
+
+        return run_chunk(_WORKER_SPEC, seeds, keep)
+
+
+def _journal_records(folder: str) -> list[dict]:
+    """Every whole record in a journal folder (a line torn by a kill is left out)."""
+    from safemanip.util.files import parse_json
+
+    out = []
+    for name in sorted(os.listdir(folder)):
+        with open(os.path.join(folder, name), encoding="utf-8", errors="replace") as f:
+            for line in f:
+                try:
+                    record = parse_json(line, "a journal line", max_bytes=1_000_000)
+                except ValueError:
+                    continue
+                if isinstance(record, dict) and isinstance(record.get("seed"), int):
+                    out.append(record)
+    return out
 
 
 def run_local(spec: EvalSpec, seeds: list[int], workers: int = 2, chunk_size: int | None = None,
@@ -153,14 +198,47 @@ def run_local(spec: EvalSpec, seeds: list[int], workers: int = 2, chunk_size: in
     (SIGINT/SIGTERM) stops the workers and raises ``PartialRun`` with the records finished so far."""
     chunks = chunk_seeds(seeds, workers, chunk_size)
     records: list[dict] = []
+    journal = tempfile.mkdtemp(prefix="safemanip-eval-") if workers > 1 else None
     try:
-        _run_local(spec, chunks, workers, on_chunk, records)
+        _run_local(spec, chunks, workers, on_chunk, records, journal)
     except Interrupted as stop:
         raise PartialRun(_in_seed_order(records, [s for c in chunks for s in c], partial=True), stop.signum) from None
+    except _PoolBroke as broke:
+        have = {r["seed"] for r in records}
+        records += [r for r in _journal_records(journal) if r["seed"] not in have and r["seed"] in set(seeds)]
+        done = _in_seed_order(records, seeds, partial=True)
+        finished = {r["seed"] for r in done}
+        raise WorkerFailure(done, [s for s in seeds if s not in finished], broke.reason) from None
+    finally:
+        if journal is not None:
+            shutil.rmtree(journal, ignore_errors=True)
     return _in_seed_order(records, seeds)
 
 
-def _run_local(spec, chunks, workers, on_chunk, records: list[dict]) -> None:
+class _PoolBroke(Exception):
+    def __init__(self, reason: str):
+        super().__init__(reason)
+        self.reason = reason
+
+
+def _worker_exits(pool) -> str:
+    from safemanip.util.procs import describe_exit
+
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    # the pool's own thread reaps the dead worker and sends SIGTERM to the others: wait (briefly) until the exit code
+    # it reaped is stored, and report the worker that died first, not the ones the pool ended
+    deadline = time.monotonic() + 2.0
+    while True:
+        codes = [c for c in (p.exitcode for p in processes) if c not in (None, 0)]
+        first = [c for c in codes if c != -signal.SIGTERM]
+        if first or time.monotonic() > deadline:
+            break
+        time.sleep(0.05)
+    codes = first or codes
+    return f"a worker process {describe_exit(codes[0])}" if codes else "a worker process died"
+
+
+def _run_local(spec, chunks, workers, on_chunk, records: list[dict], journal: str | None = None) -> None:
     if workers <= 1:
         for c in chunks:
             part = run_chunk(spec, c)
@@ -174,16 +252,30 @@ def _run_local(spec, chunks, workers, on_chunk, records: list[dict]) -> None:
         # instead of being replaced silently and hanging the run.
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
+        from concurrent.futures.process import BrokenProcessPool
+
         with _env_vars(_ONE_THREAD):
             pool = ProcessPoolExecutor(min(workers, len(chunks)), mp_context=mp.get_context("spawn"),
-                                       initializer=_worker_init, initargs=(os.getpid(), spec))
+                                       initializer=_worker_init, initargs=(os.getpid(), spec, journal))
         try:
             futures = [pool.submit(_run_chunk_in_worker, c) for c in chunks]
-            for fut in as_completed(futures):
-                part = fut.result()
-                records += part
-                if on_chunk:
-                    on_chunk(len(part))
+            try:
+                for fut in as_completed(futures):
+                    part = fut.result()
+                    records += part
+                    if on_chunk:
+                        on_chunk(len(part))
+            except BrokenProcessPool:
+                reason = _worker_exits(pool)
+                for fut in futures:  # chunks that finished before the pool broke
+                    if fut.done() and not fut.cancelled() and fut.exception() is None:
+                        have = {r["seed"] for r in records}
+                        records += [r for r in fut.result() if r["seed"] not in have]
+                raise _PoolBroke(reason) from None
+            except (Interrupted, KeyboardInterrupt):
+                raise
+            except Exception as err:  # an episode raised in a worker: keep what is finished, say what failed
+                raise _PoolBroke(f"an episode failed in a worker ({err.__class__.__name__}: {str(err)[:300]})") from None
         except BaseException:
             # do not keep simulating after a failure or a stop: cancel what has not started, end the workers
             for proc in list(getattr(pool, "_processes", {}).values()):
@@ -210,17 +302,27 @@ def run_ray(spec: EvalSpec, seeds: list[int], workers: int = 2, address: str | N
         init_ray(address, workers)
         started = True
     records: list[dict] = []
+    pending: list = []
     try:
         remote = ray.remote(num_cpus=1)(run_chunk)
         spec_ref = ray.put(spec)  # one copy of the weights in the object store, shared by all tasks
         chunks = chunk_seeds(seeds, max(workers, int(ray.cluster_resources().get("CPU", workers))), chunk_size)
         pending = [remote.remote(spec_ref, c) for c in chunks]
+        failure = None
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
-            part = ray.get(done[0])
+            try:
+                part = ray.get(done[0])
+            except ray.exceptions.RayError as err:  # a task that failed after Ray's own retries: go on with the rest
+                failure = failure or f"a Ray task failed ({err.__class__.__name__}: {(str(err).splitlines() or [''])[0][:200]})"
+                continue
             records += part
             if on_chunk:
                 on_chunk(len(part))
+        if failure:
+            done_records = _in_seed_order(records, seeds, partial=True)
+            finished = {r["seed"] for r in done_records}
+            raise WorkerFailure(done_records, [s for s in seeds if s not in finished], failure)
     except Interrupted as stop:
         for ref in pending:
             ray.cancel(ref, force=True)

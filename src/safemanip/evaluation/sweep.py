@@ -95,67 +95,168 @@ def available() -> list[str]:
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".json"))
 
 
+SPEC_KEYS = ("name", "title", "description", "figure", "episodes", "seed", "judge", "policies", "n_objects", "semantics",
+             "selectors", "constraints", "pairs", "k_equals_n_selector", "table")
+"""Every key a sweep spec may hold; any other (a misspelt "seeds", a "layout" the grid does not take) is refused."""
+REQUIRED_KEYS = ("name", "figure", "episodes", "policies", "n_objects", "judge")
+POLICY_ENTRY_KEYS = ("path", "n_objects", "semantics")
+CELL_FIELDS = ("policy", "algorithm", "k", "policy_constraints", "n_objects", "semantics", "selector", "constraints",
+               "judge", "episodes", "seed", "vlm")
+"""What a table's rows and columns may name (the fields of ``Cell``)."""
+PLAIN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
+MAX_SPEC_BYTES = 1_000_000
+MAX_RESULT_BYTES = 10_000_000
+
+
 def load_config(name_or_path: str) -> dict:
-    """A shipped sweep by name (``fig5``) or a JSON file by path; validated."""
+    """A shipped sweep by name (``fig5``) or a JSON file by path; validated against the schema (``_validate``)
+    before anything is created."""
+    from safemanip.util.files import JSONInputError, parse_json, read_json_file
+
     path = Path(name_or_path)
-    if path.suffix == ".json" and path.exists():
-        text = path.read_text()
-    else:
-        res = resources.files("safemanip.evaluation").joinpath("sweeps", f"{name_or_path}.json")
-        if not res.is_file():
-            raise SweepError(f"no sweep named {name_or_path!r}; shipped sweeps: {', '.join(available())} "
-                             f"(or pass the path of a sweep .json file)")
-        text = res.read_text()
     try:
-        cfg = json.loads(text)
-    except json.JSONDecodeError as err:
-        raise SweepError(f"sweep {name_or_path!r} is not valid JSON: {err}") from err
+        if path.suffix == ".json" and path.exists():
+            cfg = read_json_file(path, f"sweep {name_or_path!r}", max_bytes=MAX_SPEC_BYTES)
+        else:
+            res = resources.files("safemanip.evaluation").joinpath("sweeps", f"{name_or_path}.json")
+            if not PLAIN_NAME.fullmatch(str(name_or_path)) or not res.is_file():
+                raise SweepError(f"no sweep named {str(name_or_path)[:100]!r}; shipped sweeps: {', '.join(available())} "
+                                 f"(or pass the path of a sweep .json file)")
+            cfg = parse_json(res.read_text(), f"sweep {name_or_path!r}", max_bytes=MAX_SPEC_BYTES)
+    except JSONInputError as err:
+        raise SweepError(str(err)) from err
+    except OSError as err:
+        raise SweepError(f"cannot read sweep {name_or_path!r}: {err.strerror or err}") from err
     _validate(cfg, name_or_path)
     return cfg
 
 
-def _validate(cfg: dict, where: str) -> None:
-    from safemanip.evaluation.harness import JUDGES
-    from safemanip.evaluation.registry import CONSTRAINT_SELECTORS, OBJECT_SELECTORS
+def _is_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
 
-    problems = []
-    for key in ("name", "figure", "episodes", "policies", "n_objects", "judge"):
-        if key not in cfg:
-            problems.append(f"missing key {key!r}")
+
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _validate(cfg, where: str) -> None:
+    """The sweep-spec schema: known keys only, each of its type and range, every name one the registries know.
+    All problems in one message."""
+    from safemanip.evaluation.harness import JUDGES, SEED_STRIDE, parse_semantics_checked
+    from safemanip.evaluation.registry import CONSTRAINT_SELECTORS, OBJECT_SELECTORS
+    from safemanip.scene.config import MAX_OBJECTS
+
+    if not isinstance(cfg, dict):
+        raise SweepError(f"sweep {where}: a sweep spec is a JSON object of {', '.join(REQUIRED_KEYS)}, ...; got "
+                         f"{_short(cfg)}")
+    problems = [f"missing key {key!r}" for key in REQUIRED_KEYS if key not in cfg]
+    unknown = [key for key in cfg if key not in SPEC_KEYS]
+    if unknown:
+        problems.append(f"unknown key(s) {', '.join(repr(k[:40]) for k in unknown[:5])}; a sweep spec takes "
+                        f"{', '.join(SPEC_KEYS)}")
     if problems:
         raise SweepError(f"sweep {where}: " + "; ".join(problems))
-    if cfg["figure"] not in FIGURES:
-        problems.append(f"figure must be one of {FIGURES}")
-    if cfg["judge"] not in JUDGES:
-        problems.append(f"judge must be one of {list(JUDGES)}")
-    for entry in cfg["policies"]:
-        if isinstance(entry, dict) and (set(entry) - {"path", "n_objects", "semantics"} or "path" not in entry):
-            problems.append(f"policy entry {entry} must be a path or {{'path', 'n_objects', 'semantics'}}")
-            continue
-        p = entry["path"] if isinstance(entry, dict) else entry
-        if not POLICY_NAME.fullmatch(Path(p).stem):
-            problems.append(f"policy {p!r} is not named ALGORITHM-kK-CONSTRAINTS.safetensors "
-                            f"(e.g. policies/rarl-k2-conservative.safetensors)")
-    pairs = cfg.get("pairs") or [(s, c) for s in cfg.get("selectors", []) for c in cfg.get("constraints", ["conservative"])]
-    if not pairs:
+
+    def need(ok: bool, message: str) -> bool:
+        if not ok:
+            problems.append(message)
+        return ok
+
+    def str_list(key: str, value, allowed=None, nullable: bool = False) -> bool:
+        ok = isinstance(value, list) and value and all(isinstance(v, str) or (nullable and v is None) for v in value)
+        if not need(bool(ok), f"{key} must be a non-empty list of {'names' if allowed else 'strings'}"
+                              f"{' or null' if nullable else ''}, got {_short(value)}"):
+            return False
+        for v in value:
+            if allowed is not None and v not in allowed:
+                problems.append(f"unknown {key[:-1] if key.endswith('s') else key} {_short(v)}; choose from "
+                                f"{', '.join(sorted(allowed))}")
+        return True
+
+    def counts(key: str, value) -> bool:
+        return need(isinstance(value, list) and bool(value) and all(_is_int(n) and 0 <= n <= MAX_OBJECTS for n in value),
+                    f"{key} must be a non-empty list of object counts 0..{MAX_OBJECTS}, got {_short(value)}")
+
+    name = cfg["name"]
+    need(isinstance(name, str) and PLAIN_NAME.fullmatch(name) is not None and ".." not in name,
+         f"name must be a plain file name (letters, digits, '.', '_', '-'; no folders), got {_short(name)}: it names "
+         f"the table and figure written inside the output folder")
+    for key in ("title", "description"):
+        if key in cfg:
+            need(isinstance(cfg[key], str) and len(cfg[key]) <= 2000, f"{key} must be a string, got {_short(cfg[key])}")
+    need(cfg["figure"] in FIGURES, f"figure must be one of {FIGURES}, got {_short(cfg['figure'])}")
+    need(isinstance(cfg["judge"], str) and cfg["judge"] in JUDGES,
+         f"judge must be one of {list(JUDGES)}, got {_short(cfg['judge'])}")
+    need(_is_int(cfg["episodes"]) and 1 <= cfg["episodes"] <= SEED_STRIDE,
+         f"episodes must be an integer 1..{SEED_STRIDE}, got {_short(cfg['episodes'])}")
+    if "seed" in cfg:
+        most = 2**31 // SEED_STRIDE - 1
+        need(_is_int(cfg["seed"]) and 0 <= cfg["seed"] <= most,
+             f"seed (the episode seed block) must be an integer 0..{most}, got {_short(cfg['seed'])}")
+    counts("n_objects", cfg["n_objects"])
+    semantics = [None]
+    if "semantics" in cfg and str_list("semantics", cfg["semantics"], nullable=True):
+        semantics = list(cfg["semantics"])
+    policies = cfg["policies"]
+    if need(isinstance(policies, list) and bool(policies),
+            f"policies must be a non-empty list of policy files, got {_short(policies)}"):
+        for entry in policies:
+            if isinstance(entry, dict):
+                if not need(set(entry) <= set(POLICY_ENTRY_KEYS) and isinstance(entry.get("path"), str),
+                            f"policy entry {_short(entry)} must be a path or {{'path', 'n_objects', 'semantics'}}"):
+                    continue
+                if "n_objects" in entry:
+                    counts(f"n_objects of {entry['path']}", entry["n_objects"])
+                if "semantics" in entry and str_list("semantics", entry["semantics"], nullable=True):
+                    semantics += entry["semantics"]
+                p = entry["path"]
+            elif isinstance(entry, str):
+                p = entry
+            else:
+                problems.append(f"policy entry {_short(entry)} must be a path or {{'path', 'n_objects', 'semantics'}}")
+                continue
+            if not POLICY_NAME.fullmatch(Path(p).stem):
+                problems.append(f"policy {p[:200]!r} is not named ALGORITHM-kK-CONSTRAINTS.safetensors "
+                                f"(e.g. policies/rarl-k2-conservative.safetensors)")
+    if "selectors" in cfg:
+        str_list("selectors", cfg["selectors"], OBJECT_SELECTORS)
+    if "constraints" in cfg:
+        str_list("constraints", cfg["constraints"], CONSTRAINT_SELECTORS)
+    if "pairs" in cfg:
+        pairs = cfg["pairs"]
+        if need(isinstance(pairs, list) and bool(pairs) and all(isinstance(p, list) and len(p) == 2
+                                                                 and all(isinstance(x, str) for x in p) for p in pairs),
+                f"pairs must be a non-empty list of [selector, constraints] pairs, got {_short(pairs)}"):
+            for s, c in pairs:
+                need(s in OBJECT_SELECTORS, f"unknown selector {_short(s)}")
+                need(c in CONSTRAINT_SELECTORS, f"unknown constraint selector {_short(c)}")
+    elif "selectors" not in cfg:
         problems.append("give 'selectors' (and optionally 'constraints') or 'pairs'")
-    for s, c in pairs:
-        if s not in OBJECT_SELECTORS:
-            problems.append(f"unknown selector {s!r}")
-        if c not in CONSTRAINT_SELECTORS:
-            problems.append(f"unknown constraint selector {c!r}")
-    all_semantics = list(cfg.get("semantics", [None])) + [sem for e in cfg["policies"] if isinstance(e, dict)
-                                                            for sem in e.get("semantics", [])]
-    for sem in all_semantics:
-        if sem is not None:
-            from safemanip.evaluation.harness import parse_semantics_checked
+    for sem in semantics:
+        if isinstance(sem, str):
             try:
-                parse_semantics_checked(sem) if isinstance(sem, str) else parse_semantics_checked(str(sem))
+                parse_semantics_checked(sem)
             except ValueError as err:
                 problems.append(str(err))
     extra = cfg.get("k_equals_n_selector")
-    if extra is not None and extra not in OBJECT_SELECTORS:
-        problems.append(f"unknown k_equals_n_selector {extra!r}")
+    if extra is not None:
+        need(isinstance(extra, str) and extra in OBJECT_SELECTORS, f"unknown k_equals_n_selector {_short(extra)}")
+    if "table" in cfg:
+        table = cfg["table"]
+        if need(isinstance(table, dict) and set(table) == {"rows", "columns"},
+                f"table must be {{'rows': [...], 'columns': [...]}}, got {_short(table)}"):
+            for part in ("rows", "columns"):
+                names = table[part]
+                if need(isinstance(names, list) and bool(names) and all(isinstance(n, str) for n in names)
+                        and len(set(names)) == len(names), f"table {part} must be a non-empty list of distinct cell "
+                                                           f"fields, got {_short(names)}"):
+                    bad = [n for n in names if n not in CELL_FIELDS]
+                    need(not bad, f"table {part}: unknown cell field(s) {', '.join(_short(n) for n in bad)}; choose "
+                                  f"from {', '.join(CELL_FIELDS)}")
+            if isinstance(table.get("rows"), list) and isinstance(table.get("columns"), list):
+                both = sorted(set(map(str, table["rows"])) & set(map(str, table["columns"])))
+                need(not both, f"table rows and columns both name {', '.join(both)}")
     if problems:
         raise SweepError(f"sweep {where}: " + "; ".join(problems))
 
@@ -207,14 +308,56 @@ def cells_of(cfg: dict, episodes: int | None = None, vlm: dict | None = None) ->
 
 
 # ------------------------------------------------------------------------------------------ running
+def _read_result(path: Path) -> dict | None:
+    """A stored cell result (``{"cell": ..., "summary": ...}``) read with the bounded reader and its structure
+    checked (the fields rendering reads are there, of their types); None if it cannot be used."""
+    from safemanip.util.files import read_json_file
+
+    try:
+        result = read_json_file(path, max_bytes=MAX_RESULT_BYTES)
+    except (OSError, ValueError):
+        return None
+    return result if _result_ok(result) else None
+
+
+def _rate_ok(entry) -> bool:
+    import math
+
+    def num(v):
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+    return (isinstance(entry, dict) and num(entry.get("rate")) and isinstance(entry.get("ci95"), list)
+            and len(entry["ci95"]) == 2 and all(num(v) for v in entry["ci95"]))
+
+
+def _result_ok(result) -> bool:
+    from safemanip.evaluation.episode import CATEGORIES
+
+    if not isinstance(result, dict) or not isinstance(result.get("cell"), dict) or not isinstance(result.get("summary"), dict):
+        return False
+    cell, summary = result["cell"], result["summary"]
+    try:
+        Cell(**{"vlm": None, **cell})
+    except TypeError:
+        return False
+    types_ok = (all(isinstance(cell[k], str) for k in ("policy", "algorithm", "policy_constraints", "selector",
+                                                         "constraints", "judge"))
+                and all(_is_int(cell[k]) for k in ("k", "n_objects", "episodes", "seed"))
+                and (cell["semantics"] is None or isinstance(cell["semantics"], str))
+                and (cell.get("vlm") is None or isinstance(cell["vlm"], str)))
+    categories = summary.get("categories")
+    return bool(types_ok and _rate_ok(summary.get("success")) and _rate_ok(summary.get("safety_violation"))
+                and isinstance(categories, dict) and all(_rate_ok(categories.get(c)) for c in CATEGORIES)
+                and _is_int(summary.get("episodes")) and isinstance(summary.get("mean_length"), (int, float)))
+
+
 def _done(path: Path, cell: Cell) -> bool:
     if not path.exists():
         return False
-    try:
-        stored = json.loads(path.read_text())["cell"]
-    except (json.JSONDecodeError, KeyError):
+    stored = _read_result(path)
+    if stored is None:
         return False  # a damaged result file is simply redone
-    return {"vlm": None, **stored} == asdict(cell)  # results from before the 'vlm' field had no VLM version
+    return {"vlm": None, **stored["cell"]} == asdict(cell)  # results from before the 'vlm' field had no VLM version
 
 
 def run_sweep(name: str, *, episodes: int | None = None, out: str | None = None, workers: int = 2,
@@ -246,8 +389,12 @@ def run_sweep(name: str, *, episodes: int | None = None, out: str | None = None,
         if problems:
             raise SweepError("; ".join(problems))
     problems = check_output_dir(root)
+    if backend == "ray" and not render_only:
+        from safemanip.evaluation.harness import ray_address_problems
+
+        problems += ray_address_problems(address)
     if problems:
-        raise SweepError(problems[0])
+        raise SweepError("; ".join(problems))
     status = {"ran": [], "done": [], "skipped": [], "failed": [], "interrupted": None}
     with OutputLock(root):
         if not render_only:
@@ -322,6 +469,13 @@ def _run_cells(cfg, cells, root, status, workers, backend, address, progress, lo
         if report["summary"].get("interrupted"):  # a partial cell is not a result: redo it next time
             status["interrupted"] = report["summary"]["interrupted"]["signum"]
             return
+        if report["summary"].get("failed"):  # a worker died: the cell is incomplete, redone next time
+            from safemanip.evaluation.harness import failure_line
+
+            error = failure_line(report["summary"], req.out)
+            status["failed"].append({"cell": cell.id, "error": error})
+            log(f"{tag}: failed: {error}")
+            continue
         summary = {k: v for k, v in report["summary"].items() if k not in ("request", "policy_meta")}
         atomic_write_text(result_path, json.dumps({"cell": asdict(cell), "summary": summary}, indent=1))
         status["ran"].append(cell.id)
@@ -339,12 +493,15 @@ def _check_policy_name(cell: Cell) -> None:
 
 
 def load_results(root: Path) -> list[dict]:
+    """The stored cell results; a file that is not one (unreadable, too large or deep, wrong structure) is left out
+    with a warning, and its cell is redone by the next run."""
     out = []
     for path in sorted((Path(root) / "cells").glob("*.json")):
-        try:
-            out.append(json.loads(path.read_text()))
-        except json.JSONDecodeError:
-            print(f"warning: ignoring unreadable result {path}", file=sys.stderr)
+        result = _read_result(path)
+        if result is None:
+            print(f"warning: ignoring unreadable result {path} (its cell is redone by the next run)", file=sys.stderr)
+            continue
+        out.append(result)
     return out
 
 
@@ -390,9 +547,15 @@ def markdown_table(cfg: dict, results: list[dict]) -> str:
         return "\n".join(lines + ["No results yet: run `safemanip sweep " + cfg["name"] + "`."]) + "\n"
     pivot = cfg.get("table")
     if pivot:
-        rows, cols = pivot["rows"], pivot["columns"]
+        rows, cols = list(pivot["rows"]), list(pivot["columns"])
         order = _orderer(cfg)
-        key = lambda r, ks: tuple(r["cell"][k] if r["cell"][k] is not None else "any" for k in ks)  # noqa: E731
+
+        def value(cell: dict, k: str):
+            if k == "policy":
+                return Path(cell["policy"]).stem
+            return cell[k] if cell[k] is not None else "any"
+
+        key = lambda r, ks: tuple(value(r["cell"], k) for k in ks)  # noqa: E731
         full = cfg.get("k_equals_n_selector")
         # a k == N cell stands for every selector column of its N (the paper plots it on both curves)
         expanded = []
@@ -402,6 +565,14 @@ def markdown_table(cfg: dict, results: list[dict]) -> str:
                     expanded.append(({**r["cell"], "selector": sel}, r["summary"], " (k = N)"))
             else:
                 expanded.append((r["cell"], r["summary"], ""))
+        if "policy" not in rows and "policy" not in cols:
+            # two policies that share the rows' and columns' values (two k = 2 policies of different algorithms in a
+            # table by k) are both shown, one row each, not one over the other
+            seen: dict = {}
+            for c, _, _ in expanded:
+                if seen.setdefault((key({"cell": c}, rows), key({"cell": c}, cols)), c["policy"]) != c["policy"]:
+                    rows.append("policy")
+                    break
         cells = {(key({"cell": c}, rows), key({"cell": c}, cols)): (s, mark) for c, s, mark in expanded}
         row_keys = sorted({rk for rk, _ in cells}, key=lambda t: order(rows, t))
         col_keys = sorted({ck for _, ck in cells}, key=lambda t: order(cols, t))
@@ -450,17 +621,24 @@ def _plot_fig5(cfg: dict, results: list[dict], path: Path) -> None:
     full = [r for r in results if r["cell"]["k"] == r["cell"]["n_objects"]]
     ks = sorted({r["cell"]["k"] for r in results})
     colours = {k: plt.cm.viridis(i / max(1, len(ks) - 1)) for i, k in enumerate(ks)}
+    lines = []
+    for k in ks:
+        policies = sorted({r["cell"]["policy"] for r in results if r["cell"]["k"] == k})
+        for j, policy in enumerate(policies):
+            lines.append((k, policy, ("-", "--", ":", "-.")[j % 4],
+                          f"k = {k}" + (f" ({Path(policy).stem})" if len(policies) > 1 else "")))
     fig, axes = plt.subplots(1, max(1, len(panels)), figsize=(5 * max(1, len(panels)), 4), sharey=True, squeeze=False)
     for ax, sel in zip(axes[0], panels or ["full"]):
-        for k in ks:
+        for k, policy, style, label in lines:  # one line per policy: two policies of one k are both drawn
             pts = sorted(((r["cell"]["n_objects"], r["summary"]) for r in results
-                          if r["cell"]["k"] == k and (r["cell"]["selector"] == sel or r in full)), key=lambda p: p[0])
+                          if r["cell"]["k"] == k and r["cell"]["policy"] == policy
+                          and (r["cell"]["selector"] == sel or r in full)), key=lambda p: p[0])
             if not pts:
                 continue
             xs = [n for n, _ in pts]
             ys = [100 * s["success"]["rate"] for _, s in pts]
             err = _error_bars([s["success"] for _, s in pts])
-            ax.errorbar(xs, ys, yerr=err, marker="o", capsize=3, color=colours[k], label=f"k = {k}")
+            ax.errorbar(xs, ys, yerr=err, marker="o", capsize=3, color=colours[k], linestyle=style, label=label)
         fx = [(r["cell"]["n_objects"], 100 * r["summary"]["success"]["rate"]) for r in full]
         if fx:
             ax.scatter(*zip(*fx), marker="*", s=160, color="black", zorder=5, label="k = N (full state)")

@@ -51,7 +51,37 @@ class ReplayBuffer:
         os.replace(tmp, path)
 
     def load(self, path: Path) -> None:
-        with np.load(path, allow_pickle=False) as f:
-            self.pos, self.size = int(f["pos"]), int(f["size"])
-            for k in FIELDS:
-                self.data[k][:self.size] = f[k]
+        """Fill the buffer from a saved .npz, every array checked first (its presence, shape, dtype and finite
+        values); ReplayFileError says what is wrong with a truncated or damaged file. Nothing is unpickled."""
+        import zipfile
+
+        try:
+            with np.load(path, allow_pickle=False) as f:
+                missing = [k for k in ("pos", "size", *FIELDS) if k not in f.files]
+                if missing:
+                    raise ReplayFileError(f"{path} lacks {missing}")
+                pos, size = f["pos"], f["size"]
+                if pos.shape or size.shape or pos.dtype.kind not in "iu" or size.dtype.kind not in "iu":
+                    raise ReplayFileError(f"{path}: pos and size must be integers")
+                pos, size = int(pos), int(size)
+                if not 0 <= size <= self.capacity or not 0 <= pos < max(self.capacity, 1):
+                    raise ReplayFileError(f"{path} holds {size} transitions at position {pos}, which does not fit a "
+                                          f"buffer of {self.capacity} (buffer_size)")
+                arrays = {k: f[k] for k in FIELDS}
+        except ReplayFileError:
+            raise
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as err:
+            raise ReplayFileError(f"{path} cannot be read ({err.__class__.__name__}: {str(err)[:200]}); it is "
+                                  f"truncated or damaged") from err
+        for k, a in arrays.items():
+            want = (size, *self.data[k].shape[1:])
+            if a.shape != want or a.dtype != self.data[k].dtype or (a.dtype.kind == "f" and not np.isfinite(a).all()):
+                raise ReplayFileError(f"{path}: {k} has shape {a.shape} and dtype {a.dtype}, expected {want} "
+                                      f"{self.data[k].dtype} with finite values")
+        self.pos, self.size = pos, size
+        for k in FIELDS:
+            self.data[k][:size] = arrays[k]
+
+
+class ReplayFileError(ValueError):
+    """A replay.npz that cannot be loaded; the message says what is wrong."""

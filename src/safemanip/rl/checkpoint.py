@@ -20,7 +20,7 @@ import numpy as np
 from safetensors.numpy import load_file as load_numpy
 from safetensors.numpy import save_file as save_numpy
 
-from safemanip.util.files import atomic_path, atomic_write_text
+from safemanip.util.files import JSONInputError, atomic_path, atomic_write_text, parse_json, read_json_file
 
 POLICY_FORMAT = "safemanip-policy/1"
 
@@ -55,10 +55,39 @@ def _complete_meta(path: Path) -> dict | None:
     if not all((path / f).is_file() for f in ("meta.json", "state.safetensors", "replay.npz")):
         return None
     try:
-        meta = json.loads((path / "meta.json").read_text())
-        return meta if isinstance(meta, dict) and isinstance(meta.get("updates"), int) else None
+        return read_checkpoint_meta(path)
     except (OSError, ValueError):
         return None
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that cannot be resumed from; the message says what is damaged and how to recover."""
+
+
+def read_checkpoint_meta(path: Path) -> dict:
+    """A checkpoint folder's meta.json, read with the bounded JSON reader and its fields' types checked (counters
+    are non-negative integers, the elapsed time a finite number, the config an object); CheckpointError if not."""
+    where = Path(path) / "meta.json"
+    try:
+        meta = read_json_file(where, f"{where}")
+    except OSError as err:
+        raise CheckpointError(f"cannot read {where}: {err.strerror or err}") from err
+    except JSONInputError as err:
+        raise CheckpointError(str(err)) from err
+    if not isinstance(meta, dict):
+        raise CheckpointError(f"{where} is not a checkpoint's meta.json: not a JSON object")
+    wrong = [key for key in ("updates", "env_steps") if not _is_int(meta.get(key)) or meta[key] < 0]
+    if not _is_number(meta.get("elapsed_s")) or meta["elapsed_s"] < 0:
+        wrong.append("elapsed_s")
+    if "restarts" in meta and (not _is_int(meta["restarts"]) or meta["restarts"] < 0):
+        wrong.append("restarts")
+    if "best" in meta and not (isinstance(meta["best"], dict) and _is_number(meta["best"].get("success", 0.0))):
+        wrong.append("best")
+    if "config" in meta and not isinstance(meta["config"], dict):
+        wrong.append("config")
+    if wrong:
+        raise CheckpointError(f"{where} is damaged: {', '.join(wrong)} missing or of the wrong type")
+    return meta
 
 
 def find_checkpoint(run_dir: Path) -> Path | None:
@@ -95,12 +124,19 @@ def recover_checkpoint(run_dir: Path) -> Path | None:
 
 
 def read_checkpoint(path: Path):
+    """(state tensors, replay path, meta) of a checkpoint folder, each file checked first (CheckpointError or
+    PolicyFileError saying what is wrong)."""
     from safetensors.torch import load_file
 
     path = Path(path)
-    meta = json.loads((path / "meta.json").read_text())
-    check_safetensors(path / "state.safetensors")
-    return load_file(path / "state.safetensors"), path / "replay.npz", meta
+    meta = read_checkpoint_meta(path)
+    state = path / "state.safetensors"
+    check_safetensors(state)
+    try:
+        tensors = load_file(state)
+    except Exception as err:  # what the check above lets through and the Rust loader still refuses
+        raise PolicyFileError(f"{state}: the safetensors loader refused it ({_brief(err)})") from err
+    return tensors, path / "replay.npz", meta
 
 
 def _fsync_dir(path: Path) -> None:
@@ -151,6 +187,8 @@ def resolve_policy(name_or_path: str | Path) -> Path:
 
 
 MAX_HEADER_BYTES = 10_000_000
+MAX_HEADER_DEPTH = 8
+"""A safetensors header nests 3 levels (header, entry, shape); the policy metadata inside is a string."""
 MAX_FILE_BYTES = 2_000_000_000
 _DTYPE_BYTES = {"F64": 8, "F32": 4, "F16": 2, "BF16": 2, "I64": 8, "I32": 4, "I16": 2, "I8": 1, "U8": 1, "BOOL": 1}
 
@@ -176,9 +214,9 @@ def check_safetensors(path: str | Path) -> dict:
     except OSError as err:
         raise PolicyFileError(f"cannot read {path}: {err.strerror or err}") from err
     try:
-        header = json.loads(raw.decode("utf-8"))
-    except (UnicodeDecodeError, ValueError) as err:
-        raise PolicyFileError(f"{path} is not a valid safetensors file: its header is not JSON ({err})") from err
+        header = parse_json(raw, f"{path}: its header", max_bytes=MAX_HEADER_BYTES, max_depth=MAX_HEADER_DEPTH)
+    except JSONInputError as err:
+        raise PolicyFileError(f"{path} is not a valid safetensors file: its header is not JSON ({err.reason})") from err
     if not isinstance(header, dict):
         raise PolicyFileError(f"{path} is not a valid safetensors file: its header is not a JSON object")
     spans = []
@@ -187,16 +225,9 @@ def check_safetensors(path: str | Path) -> dict:
             if not isinstance(info, dict) or not all(isinstance(v, str) for v in info.values()):
                 raise PolicyFileError(f"{path}: its metadata must map names to strings")
             continue
-        try:
-            dtype, shape, (a, b) = info["dtype"], info["shape"], info["data_offsets"]
-            count = math.prod(int(s) for s in shape)
-            ok = dtype in _DTYPE_BYTES and all(isinstance(s, int) and s >= 0 for s in shape) and 0 <= a <= b \
-                and b - a == count * _DTYPE_BYTES[dtype]
-        except (KeyError, TypeError, ValueError):
-            ok = False
-        if not ok:
-            raise PolicyFileError(f"{path}: tensor {name!r} has an invalid entry in the header: {str(info)[:200]}")
-        spans.append((a, b))
+        if not _tensor_entry_ok(info):
+            raise PolicyFileError(f"{path}: tensor {name[:80]!r} has an invalid entry in the header: {str(info)[:200]}")
+        spans.append(tuple(info["data_offsets"]))
     end = 0
     for a, b in sorted(spans):
         if a != end:
@@ -206,6 +237,33 @@ def check_safetensors(path: str | Path) -> dict:
         raise PolicyFileError(f"{path}: the header describes {end} bytes of tensor data but the file holds "
                               f"{size - 8 - n}; the file is truncated or damaged")
     return header
+
+
+def _tensor_entry_ok(info) -> bool:
+    """A header entry as the Rust loader reads it: exactly dtype, shape and data_offsets; a known dtype; integer
+    (not float, not boolean) dimensions and offsets that fit 64 bits; offsets spanning the tensor's bytes."""
+    if not isinstance(info, dict) or set(info) != {"dtype", "shape", "data_offsets"}:
+        return False
+    dtype, shape, offsets = info["dtype"], info["shape"], info["data_offsets"]
+    if dtype not in _DTYPE_BYTES or not isinstance(shape, list) or not isinstance(offsets, list) or len(offsets) != 2:
+        return False
+    if not all(_is_int(v) and 0 <= v < 2**63 for v in (*shape, *offsets)):
+        return False
+    a, b = offsets
+    return a <= b and b - a == math.prod(shape) * _DTYPE_BYTES[dtype]
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _brief(err: BaseException, limit: int = 200) -> str:
+    text = str(err)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 def load_policy(path: str | Path):
@@ -231,12 +289,19 @@ def load_policy(path: str | Path):
         raise PolicyFileError(f"{path} is not a safemanip policy (format {header.get('format')!r}, "
                               f"expected {POLICY_FORMAT!r})")
     try:
-        meta = json.loads(header.get("meta", ""), parse_constant=_refuse_constant)
-    except ValueError as err:
-        raise PolicyFileError(f"{path}: the policy's metadata is not valid JSON ({err})") from err
+        meta = parse_json(header.get("meta", ""), "the policy's metadata")
+    except JSONInputError as err:
+        raise PolicyFileError(f"{path}: the policy's metadata is not valid JSON ({err.reason})") from err
     if not isinstance(meta, dict):
         raise PolicyFileError(f"{path}: the policy's metadata must be a JSON object")
-    tensors = load_numpy(str(path))
+    problems = policy_meta_problems(meta)
+    if problems:
+        raise PolicyFileError(f"{path}: its metadata is not that of a policy this package wrote: {'; '.join(problems)}; "
+                              f"re-export it with safemanip train")
+    try:
+        tensors = load_numpy(str(path))
+    except Exception as err:  # what check_safetensors lets through and the Rust loader still refuses
+        raise PolicyFileError(f"{path}: the safetensors loader refused it ({_brief(err)})") from err
     network = header.get("network", "mlp")  # files from before the set network have none: a flat MLP
     if network == "set":
         return NumpySetActor(_checked_set_arrays(path, tensors, meta)), meta
@@ -344,5 +409,51 @@ def policy_object_size(meta: dict) -> bool:
     return isinstance(env_kwargs, dict) and bool(env_kwargs.get("object_size", False))
 
 
-def _refuse_constant(name: str):
-    raise ValueError(f"{name} is not allowed")
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def policy_meta_problems(meta: dict) -> list[str]:
+    """What is wrong with the types and ranges of a policy's metadata (keys that are absent are not checked here:
+    the commands say which ones they need). Booleans must be JSON booleans, counts integers, numbers finite."""
+    from safemanip.scene.config import MAX_OBJECTS
+    from safemanip.scene.placement import LAYOUTS
+
+    def is_str(v):
+        return isinstance(v, str)
+
+    def is_count(lo, hi=None):
+        return lambda v: _is_int(v) and lo <= v and (hi is None or v <= hi)
+
+    def is_in(lo, hi):
+        return lambda v: _is_number(v) and lo <= v <= hi
+
+    def is_widths(v):
+        return isinstance(v, list) and all(_is_int(h) and h >= 1 for h in v)
+
+    top = {"algorithm": (is_str, "a name"), "k": (is_count(0, MAX_OBJECTS), f"a slot count 0..{MAX_OBJECTS}"),
+           "constraints": (is_str, "a name"), "obs_dim": (is_count(1), "a positive integer"),
+           "act_dim": (is_count(1), "a positive integer"), "hidden": (is_widths, "a list of layer widths"),
+           "network": (lambda v: v in ("mlp", "set"), "'mlp' or 'set'"), "env_kwargs": (
+               lambda v: isinstance(v, dict), "an object"), "env_steps": (is_count(0), "a count"),
+           "updates": (is_count(0), "a count"), "wall_s": (is_in(0, math.inf), "a number of seconds"),
+           "eval": (lambda v: v is None or isinstance(v, dict), "an object or null"),
+           "train_config": (lambda v: isinstance(v, dict), "an object"),
+           "train_command": (lambda v: v is None or is_str(v), "a string or null")}
+    env = {"env": (is_str, "a name"), "n_objects": (is_count(0, MAX_OBJECTS), f"an integer 0..{MAX_OBJECTS}"),
+           "constraints": (is_str, "a name"),
+           "near_path_fraction": (lambda v: v is None or is_in(0, 1)(v), "a number in [0, 1] or null"),
+           "clear_route": (lambda v: isinstance(v, bool), "true or false"),
+           "layout": (lambda v: v in LAYOUTS, f"one of {list(LAYOUTS)}"),
+           "max_episode_steps": (is_count(1, 100_000), "an integer 1..100000"),
+           "slot_order": (lambda v: v in ("nearest", "index"), "'nearest' or 'index'"),
+           "embodiment": (is_str, "a name"), "action_curve": (is_in(1, 4), "a number from 1 to 4"),
+           "object_size": (lambda v: isinstance(v, bool), "true or false")}
+    problems = [f"{key}={_short(meta[key])} is not {want}" for key, (ok, want) in top.items()
+                if key in meta and not ok(meta[key])]
+    env_kwargs = meta.get("env_kwargs")
+    if isinstance(env_kwargs, dict) and env_kwargs.get("env", "slide-out") == "slide-out":
+        problems += [f"env_kwargs.{key}={_short(env_kwargs[key])} is not {want}" for key, (ok, want) in env.items()
+                     if key in env_kwargs and not ok(env_kwargs[key])]
+    return problems

@@ -281,7 +281,13 @@ class RayPool:
             raise queue.Empty
         w = self.in_flight.pop(ready[0])
         self.idle.add(w)
-        chunk, episodes = self.ray.get(ready[0])
+        try:
+            chunk, episodes = self.ray.get(ready[0])
+        except self.ray.exceptions.RayError as err:  # the actor died (killed, out of memory) or its env failed
+            from safemanip.util.procs import WorkerDied
+
+            first = (str(err).strip().splitlines() or [""])[0][:200]
+            raise WorkerDied(f"Ray rollout actor {w} failed ({err.__class__.__name__}: {first})") from None
         self.env_steps += len(chunk["obs"])
         self._submit()
         return chunk, episodes

@@ -147,7 +147,10 @@ class TrainConfig:
     backend: str = "local"
     """Rollout workers as local processes ('local') or Ray actors ('ray'); the learner stays in this process."""
     address: str | None = None
-    """Ray cluster address (HOST:PORT or 'auto'); None starts a local Ray instance. Only with backend='ray'."""
+    """Ray cluster address (HOST:PORT or 'auto'); None starts a local Ray instance (or joins RAY_ADDRESS). Only with
+    backend='ray'. Set from the --address flag only: never written to config.json (``to_json``), refused in a
+    --config file and dropped from a run's config.json on --resume (``load_run_config``), so that no file can send
+    a run, its rollout workers or its policy to a remote cluster."""
     # -- evaluation, logging, checkpoints
     eval_every_s: float = 120.0
     eval_episodes: int = 50
@@ -317,7 +320,8 @@ class TrainConfig:
         return self.gamma_start + frac * (self.gamma - self.gamma_start)
 
     def to_json(self) -> str:
-        return json.dumps(asdict(self), indent=1)
+        """The config as written to config.json, checkpoints and policies: every field but the Ray address."""
+        return json.dumps({k: v for k, v in asdict(self).items() if k not in NOT_RECORDED}, indent=1)
 
     @classmethod
     def from_dict(cls, data: dict) -> "TrainConfig":
@@ -347,19 +351,37 @@ class TrainConfig:
 
     @classmethod
     def from_file(cls, path: str | Path) -> "TrainConfig":
-        try:
-            text = Path(path).read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as err:
-            raise ConfigError(f"cannot read the config {path}: {err}") from err
-        try:
-            data = json.loads(text, parse_constant=_no_constant)
-        except (json.JSONDecodeError, ValueError, RecursionError) as err:
-            raise ConfigError(f"{path} is not valid JSON: {err}") from err
+        """A --config file: TrainConfig fields as a JSON object. A Ray address in it is refused (it comes from
+        --address or RAY_ADDRESS only)."""
+        data = _read_config(path)
+        if isinstance(data, dict) and data.get("address") is not None:
+            raise ConfigError(f"{path}: a config file may not name a Ray cluster ('address'): the address comes from "
+                              f"--address HOST:PORT or the RAY_ADDRESS environment variable only; remove it from the file")
         return cls.from_dict(data)
 
 
-def _no_constant(name: str):
-    raise ValueError(f"{name} is not a number a config may hold")
+def load_run_config(path: str | Path) -> tuple[TrainConfig, str | None]:
+    """(config, dropped address) of a run folder's config.json (for --resume and --init-from). A Ray address
+    recorded by an older version is dropped, not used: the caller says so."""
+    data = _read_config(path)
+    dropped = data.pop("address", None) if isinstance(data, dict) else None
+    return TrainConfig.from_dict(data), (str(dropped)[:300] if dropped is not None else None)
+
+
+def _read_config(path: str | Path):
+    from safemanip.util.files import JSONInputError, read_json_file
+
+    try:
+        return read_json_file(path, str(path), max_bytes=MAX_CONFIG_BYTES)
+    except OSError as err:
+        raise ConfigError(f"cannot read the config {path}: {err.strerror or err}") from err
+    except JSONInputError as err:
+        raise ConfigError(str(err)) from err
+
+
+NOT_RECORDED = ("address",)
+"""TrainConfig fields never written to a file (``to_json``)."""
+MAX_CONFIG_BYTES = 1_000_000
 
 
 LIMITS = {"total_env_steps": 10**12, "buffer_size": 10**7, "batch_size": 65_536, "learning_starts": 10**9,

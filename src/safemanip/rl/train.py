@@ -17,16 +17,17 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from safemanip.rl.buffer import ReplayBuffer
-from safemanip.rl.checkpoint import find_checkpoint, read_checkpoint, recover_checkpoint, save_policy, write_checkpoint
+from safemanip.rl.buffer import ReplayBuffer, ReplayFileError
+from safemanip.rl.checkpoint import (CHECKPOINT_NAMES, CheckpointError, find_checkpoint, read_checkpoint,
+                                     read_checkpoint_meta, recover_checkpoint, save_policy, write_checkpoint)
 from safemanip.rl.collector import make_pool
-from safemanip.rl.config import ConfigError, TrainConfig
+from safemanip.rl.config import ConfigError, TrainConfig, load_run_config
 from safemanip.rl.envs import make_env
 from safemanip.rl.learner import Learner
 from safemanip.rl.networks import actor_arrays
 from safemanip.rl.rollout import evaluate_actor
-from safemanip.util.files import OutputLock, atomic_write_text, check_output_dir
-from safemanip.util.procs import stop_on_signals
+from safemanip.util.files import OutputLock, atomic_write_text, check_output_dir, parse_json, read_json_file
+from safemanip.util.procs import WorkerDied, describe_exit, stop_on_signals
 
 EVAL_SEED_BASE = 1_000_000  # evaluation seeds are disjoint from every training seed
 SYNC_EVERY = 50  # learner updates between actor-weight broadcasts to the workers
@@ -96,9 +97,15 @@ def truncate_logs(run_dir: Path, env_steps: int) -> None:
     (scalars.csv, evals.jsonl) and best.safetensors matches the resumed history."""
     scalars = run_dir / "scalars.csv"
     if scalars.exists():
-        with open(scalars, newline="") as f:
-            rows = list(csv.reader(f))
-        kept = rows[:1] + [r for r in rows[1:] if len(r) == 5 and r[1].isdigit() and int(r[1]) <= env_steps]
+        rows = []
+        with open(scalars, newline="", errors="replace") as f:
+            try:
+                for row in csv.reader(f):
+                    rows.append(row)
+            except csv.Error:  # a damaged line (e.g. torn by a kill): keep what came before it
+                pass
+        kept = rows[:1] + [r for r in rows[1:] if len(r) == 5 and r[1].isdigit() and len(r[1]) < 19
+                           and int(r[1]) <= env_steps]
         if len(kept) != len(rows):
             text = io.StringIO()
             csv.writer(text).writerows(kept)
@@ -106,12 +113,13 @@ def truncate_logs(run_dir: Path, env_steps: int) -> None:
     evals = run_dir / "evals.jsonl"
     if evals.exists():
         kept_lines = []
-        for line in evals.read_text().splitlines():
+        for line in evals.read_text(errors="replace").splitlines():
             try:
-                if int(json.loads(line)["env_steps"]) <= env_steps:
+                steps = parse_json(line, "a line of evals.jsonl", max_bytes=100_000)["env_steps"]
+                if isinstance(steps, int) and not isinstance(steps, bool) and steps <= env_steps:
                     kept_lines.append(line)
             except (ValueError, KeyError, TypeError):
-                pass  # a torn last line from a kill
+                pass  # a torn last line from a kill, or a line that is not an evaluation: dropped
         atomic_write_text(evals, "".join(x + "\n" for x in kept_lines))
     best = run_dir / "best.safetensors"
     if best.exists():
@@ -119,6 +127,8 @@ def truncate_logs(run_dir: Path, env_steps: int) -> None:
         try:
             best_steps = load_policy(best)[1].get("env_steps", 0)
         except PolicyFileError:
+            best_steps = env_steps + 1
+        if not isinstance(best_steps, int):
             best_steps = env_steps + 1
         if best_steps > env_steps:  # from the discarded segment: keep it aside, not as the run's best
             os.replace(best, run_dir / f"best.discarded-{best_steps}.safetensors")
@@ -141,7 +151,7 @@ def warm_start(cfg: TrainConfig) -> tuple[dict, dict] | None:
     if checkpoint is None:
         raise ConfigError(f"--init-from {source}: no complete checkpoint there; give a training run's folder "
                           f"(the --out of an earlier safemanip train)")
-    src = TrainConfig.from_file(source / "config.json")
+    src, _ = load_run_config(source / "config.json")  # only its network and task fields are read
     differ = [f"{name} is {getattr(src, name)!r} there but {getattr(cfg, name)!r} here" for name in WARM_START_FIELDS
               if getattr(src, name) != getattr(cfg, name)]
     if differ:
@@ -153,13 +163,70 @@ def warm_start(cfg: TrainConfig) -> tuple[dict, dict] | None:
                       "elapsed_s": round(meta["elapsed_s"], 1)}
 
 
+RESUME_FIELDS = ("algorithm", "k", "constraints", "network", "set_embed", "hidden", "twin_critics", "embodiment",
+                 "layout", "clear_route", "near_path_fraction", "object_size", "action_curve", "slot_order",
+                 "max_episode_steps", "env", "extra_env_kwargs", "scene_objects", "scene_objects_min", "selector",
+                 "selection_radius", "selection_interval", "buffer_size")
+"""What a resumed run's config.json must share with its checkpoint: the networks' shapes and the meaning of their
+inputs and outputs, the task and its scenes, and the replay buffer's size. Budgets, rates and logging may differ."""
+
+
+def resume_mismatch(cfg: TrainConfig, meta: dict) -> list[str]:
+    """The RESUME_FIELDS on which ``cfg`` differs from the config recorded in a checkpoint's ``meta`` (fields an
+    older checkpoint did not record are not compared)."""
+    recorded = meta.get("config")
+    if not isinstance(recorded, dict):
+        return []
+    now = json.loads(cfg.to_json())
+    return [f"{name} is {now[name]!r} in config.json but {recorded[name]!r} in the checkpoint" for name in RESUME_FIELDS
+            if name in recorded and recorded[name] != now[name]]
+
+
+def recovery_hint(run_dir: Path) -> str:
+    """How to go on from a run whose checkpoint cannot be resumed."""
+    return (f"Restore the damaged file from a backup, or start a new run: safemanip train --config "
+            f"{run_dir / 'config.json'} --out NEW_FOLDER (the policies trained so far stay in {run_dir})")
+
+
+def no_checkpoint_message(run_dir: Path) -> str:
+    """Why ``--resume`` finds no complete checkpoint in ``run_dir``, and what to do."""
+    found = []
+    for name in CHECKPOINT_NAMES:
+        folder = run_dir / name
+        if not folder.is_dir():
+            continue
+        missing = [f for f in ("meta.json", "state.safetensors", "replay.npz") if not (folder / f).is_file()]
+        if missing:
+            found.append(f"{folder} lacks {', '.join(missing)}")
+            continue
+        try:
+            read_checkpoint_meta(folder)
+        except CheckpointError as err:
+            found.append(str(err))
+    if not found:
+        return f"--resume: no complete checkpoint in {run_dir}; start a new run without --resume"
+    return f"--resume {run_dir}: no usable checkpoint: {'; '.join(found)}. {recovery_hint(run_dir)}"
+
+
 def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool, command: str | None,
                   warm: tuple[dict, dict] | None = None) -> Path:
     checkpoint = recover_checkpoint(run_dir) if resume else None
     if resume and checkpoint is None:
-        raise ConfigError(f"--resume: no complete checkpoint in {run_dir}; start a new run without --resume")
+        raise ConfigError(no_checkpoint_message(run_dir))
     if not resume and find_checkpoint(run_dir) is not None:
         raise ConfigError(f"{run_dir} already holds a run: pass --resume to continue it, or choose another --out")
+    resumed = None
+    if checkpoint is not None:  # every file of the checkpoint and its fit to config.json, before anything is written
+        try:
+            resumed = read_checkpoint(checkpoint)
+        except ValueError as err:  # CheckpointError, PolicyFileError
+            raise CheckpointError(f"--resume {run_dir}: {err}. {recovery_hint(run_dir)}") from err
+        differ = resume_mismatch(cfg, resumed[2])
+        if differ:
+            raise ConfigError(f"--resume {run_dir}: its config.json no longer matches the checkpoint it resumes "
+                              f"({'; '.join(differ)}): these change the network or the task, so the checkpoint cannot "
+                              f"continue under them. Restore config.json (the checkpoint's own settings are under "
+                              f"\"config\" in {checkpoint / 'meta.json'}), or start a new run with --out")
     cfg.out_dir = str(run_dir)  # the folder actually written (a copied run folder is its own run)
     atomic_write_text(run_dir / "config.json", cfg.to_json())
 
@@ -179,11 +246,22 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
     elapsed_before = 0.0
     restarts = 0
     best = {"success": -1.0}
-    if checkpoint is not None:
-        tensors, replay_path, meta = read_checkpoint(checkpoint)
-        learner.load_state_tensors(tensors)
+    if resumed is not None:
+        tensors, replay_path, meta = resumed
+        try:
+            learner.load_state_tensors(tensors)
+        except (RuntimeError, KeyError, ValueError) as err:  # shapes or names that do not fit this config's networks
+            raise CheckpointError(f"--resume {run_dir}: the networks in {checkpoint / 'state.safetensors'} do not fit "
+                                  f"its config.json ({str(err)[:200]}). {recovery_hint(run_dir)}") from err
         learner.updates = updates = meta["updates"]
-        buffer.load(replay_path)
+        try:
+            buffer.load(replay_path)
+        except ReplayFileError as err:
+            raise CheckpointError(f"--resume {run_dir}: the replay buffer cannot be restored: {err}. The run cannot "
+                                  f"continue exactly from this checkpoint; to keep its networks, start a new run from "
+                                  f"them (fresh replay buffer): safemanip train --config {run_dir / 'config.json'} "
+                                  f"--init-from {run_dir} --out NEW_FOLDER; or restore {replay_path.name} from a "
+                                  f"backup") from err
         env_steps, elapsed_before = meta["env_steps"], meta["elapsed_s"]
         restarts = meta.get("restarts", 0) + 1
         best = meta.get("best", best)
@@ -245,7 +323,7 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
             save_policy(run_dir / "best.safetensors", actor_arrays(learner.actor),
                         policy_meta(cfg, obs_dim, act_dim, result, env_steps, updates, elapsed(), command))
 
-    interrupted = None
+    interrupted = worker_failed = None
     last_alive_check = start
     with stop_on_signals(raise_exc=False) as stopped:
         try:
@@ -263,9 +341,14 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
                         chunk, episodes = pool.get(0.05 if buffer.size < cfg.learning_starts and got == 0 else 0.0)
                     except queue.Empty:
                         break
+                    except WorkerDied as err:  # a Ray actor that died: reported by its call
+                        worker_failed = str(err)
+                        break
                     buffer.add_many(chunk)
                     recent_events.extend(e for e, _ in episodes)
                     got += 1
+                if worker_failed:
+                    break
                 env_steps = pool.env_steps
                 # ---- learn, at the configured update-to-data ratio
                 can_update = buffer.size >= cfg.learning_starts and \
@@ -289,8 +372,8 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
                 if now - last_alive_check >= 1.0:
                     dead = pool.dead()
                     if dead is not None:
-                        raise RuntimeError(f"rollout worker exited with code {dead}; the run stops (its "
-                                           f"last checkpoint is kept: safemanip train --resume {run_dir})")
+                        worker_failed = f"a rollout worker {describe_exit(dead)}"
+                        break
                     last_alive_check = now
                 # ---- log
                 if now - last_log >= cfg.log_every_s:
@@ -322,7 +405,9 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
             pool.close()
             if bar is not None:
                 bar.close()
-        if interrupted is None:
+        if worker_failed is not None:  # the learner and its buffer are whole: save them, then report
+            print(f"{worker_failed}: stopping; saving a checkpoint and the current policy (no final evaluation)")
+        elif interrupted is None:
             run_eval()
         else:
             print(f"{interrupted}: stopping; saving a checkpoint and the current policy (no final evaluation)")
@@ -332,8 +417,14 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
         log.close()
         summary = {"env_steps": env_steps, "updates": updates, "wall_s": round(elapsed(), 1),
                    "final_eval": last_eval_result, "best_eval": best, "interrupted": interrupted,
-                   "learner": learner.precision.as_dict()}
+                   "worker_failed": worker_failed, "learner": learner.precision.as_dict()}
         if (run_dir / "init_from.json").exists():  # whose networks this run started from: count its training too
-            summary["init_from"] = json.loads((run_dir / "init_from.json").read_text())
+            try:
+                summary["init_from"] = read_json_file(run_dir / "init_from.json", max_bytes=100_000)
+            except (OSError, ValueError) as err:
+                summary["init_from"] = {"unreadable": str(err)[:200]}
         atomic_write_text(run_dir / "summary.json", json.dumps(summary, indent=1))
+    if worker_failed is not None:
+        raise WorkerDied(f"{worker_failed}; the run stopped after {env_steps} env steps and saved a checkpoint and its "
+                         f"policy in {run_dir}; continue with: safemanip train --resume {run_dir}")
     return run_dir

@@ -17,9 +17,12 @@ from pathlib import Path
 from typing import Sequence
 
 from safemanip.semantics.base import BackendError
+from safemanip.util.files import JSONInputError, read_json_file
+from safemanip.util.secrets import redact_value
 
 CACHE_FORMAT = "safemanip-vlm-cache/1"
 CACHE_MODES = ("readwrite", "readonly", "cache_only")
+MAX_ENTRY_BYTES = 4_000_000
 
 
 def cache_key(model: str, prompt: str, images: Sequence[bytes], schema: dict) -> str:
@@ -74,12 +77,13 @@ class ResponseCache:
         entry: dict | None = None
         corrupt: str | None = None
         try:
-            entry = json.loads(path.read_text(encoding="utf-8"))
+            entry = read_json_file(path, str(path), max_bytes=MAX_ENTRY_BYTES)
         except FileNotFoundError:
             pass
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            # a corrupt entry is treated as a miss (and overwritten on the next store), not as fatal
-            corrupt = f"{path}: {exc}"
+        except (OSError, ValueError) as exc:
+            # a corrupt entry (unreadable, too large or deep, not JSON) is treated as a miss (and overwritten on the
+            # next store), not as fatal
+            corrupt = str(exc) if isinstance(exc, JSONInputError) else f"{path}: {exc}"
         if entry is not None and not isinstance(entry, dict):
             corrupt, entry = f"{path}: not a JSON object", None
         if entry is not None and (entry.get("format") != CACHE_FORMAT or entry.get("key") != key
@@ -100,7 +104,7 @@ class ResponseCache:
                     "directory that holds them (the key covers model, prompt text, images and schema).")
             return None
         self.hits += 1
-        return entry["answer"]
+        return redact_value(entry["answer"])
 
     def put(self, key: str, answer: dict, meta: dict | None = None) -> None:
         """Store ``answer`` atomically (no-op unless mode is readwrite)."""
@@ -108,8 +112,8 @@ class ResponseCache:
             return
         path = self._path(key)
         path.parent.mkdir(parents=True, exist_ok=True)
-        entry = {"format": CACHE_FORMAT, "key": key, "created_unix": time.time(), "meta": meta or {},
-                 "answer": answer}
+        entry = {"format": CACHE_FORMAT, "key": key, "created_unix": time.time(), "meta": redact_value(meta or {}),
+                 "answer": redact_value(answer)}  # never a credential in a file that gets shared
         fd, tmp = tempfile.mkstemp(prefix=f".{key[:12]}.", suffix=".tmp", dir=path.parent)
         try:
             with os.fdopen(fd, "w", encoding="utf-8") as f:

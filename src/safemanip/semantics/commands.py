@@ -20,6 +20,7 @@ from safemanip.scene.catalog import CONSTRAINT_OF_CLASS, CONSTRAINT_TYPES, SEMAN
 from safemanip.selection.base import SceneView, nearest_ids
 from safemanip.semantics.base import VLM_BACKENDS, Backend, BackendError, ConstraintQuery, ObjectQuery, object_label
 from safemanip.semantics.cache import ResponseCache
+from safemanip.util.secrets import redact, redact_value
 
 log = logging.getLogger(__name__)
 
@@ -83,8 +84,10 @@ def object_set(which: str) -> dict[str, str]:
         catalog = load_catalog()
         return {n: catalog[n].constraint for n in PAPER_OBJECTS}
     if which in HELDOUT_FILES:
-        raw = json.loads(resources.files("safemanip.semantics").joinpath("data", HELDOUT_FILES[which])
-                         .read_text(encoding="utf-8"))
+        from safemanip.util.files import parse_json
+
+        raw = parse_json(resources.files("safemanip.semantics").joinpath("data", HELDOUT_FILES[which])
+                         .read_bytes(), HELDOUT_FILES[which])
         return {n: CONSTRAINT_OF_CLASS[c] for c in SEMANTIC_CLASSES for n in sorted(raw["classes"][c])}
     raise ValueError(f"unknown object set {which!r}; choose one of {OBJECT_SETS}")
 
@@ -366,8 +369,9 @@ def render_query(seed: int, out_dir: str, *, n_objects: int = 4, steps: int = 8,
             "note": ("ground_truth is for the reader only; the model is sent the image and the prompt. The image "
                      "tiles the annotated frames of the queries in frames_from_queries_at_t, oldest left."),
         }
+        result = redact_value(result)  # the backend's description and answer: never a key or URL credentials
         stem.with_suffix(".json").write_text(json.dumps(result, indent=1))
-        stem.with_suffix(".txt").write_text(user_text + "\n")
+        stem.with_suffix(".txt").write_text(redact(user_text) + "\n")
     finally:
         env.close()
     lines = [f"render-query: seed {seed}, {n_objects} objects, scripted controller, {t} step(s) run"
@@ -382,4 +386,4 @@ def render_query(seed: int, out_dir: str, *, n_objects: int = 4, steps: int = 8,
     else:
         lines.append(f"  the backend failed on this query: {answer}")
     lines += [f"  image: {png}", f"  list + prompt: {stem.with_suffix('.json')}, {stem.with_suffix('.txt')}"]
-    return "\n".join(lines), result
+    return redact("\n".join(lines)), result

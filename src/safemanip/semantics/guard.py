@@ -4,7 +4,9 @@ A server that hangs or fails on every request must not make an evaluation take h
 passes queries through until ``max_failures`` consecutive queries have failed (the breaker opens) or the
 time spent in queries exceeds the per-episode or per-run budget; from then on every query raises
 ``BackendError`` at once, so the selectors answer with their fallback (dynamic-knn for objects,
-conservative for constraints). ``status()`` says whether and why, for the results.
+conservative for constraints). ``status()`` says whether and why, for the results. A backend with
+``set_deadline`` (the openai one) is also told the time left in the budgets before each query, so that one
+slow query cannot overrun them.
 """
 
 from __future__ import annotations
@@ -73,6 +75,11 @@ class GuardedBackend:
         if self.episode_budget_s is not None and self.episode_spent_s >= self.episode_budget_s:
             raise BackendError(f"{self.name}: episode time budget of {self.episode_budget_s:g} s used up; using "
                                "the fallback for the rest of the episode")
+        left = [budget - spent for budget, spent in ((self.run_budget_s, self.run_spent_s),
+                                                      (self.episode_budget_s, self.episode_spent_s)) if budget is not None]
+        set_deadline = getattr(self.inner, "set_deadline", None)
+        if set_deadline is not None:  # the budgets bound the query itself, not only whether the next one starts
+            set_deadline(min(left) if left else None)
         start = self._clock()
         try:
             out = fn(arg)
@@ -85,5 +92,7 @@ class GuardedBackend:
             spent = self._clock() - start
             self.run_spent_s += spent
             self.episode_spent_s += spent
+            if set_deadline is not None:
+                set_deadline(None)
         self.consecutive_failures = 0
         return out

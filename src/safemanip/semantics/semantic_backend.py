@@ -20,8 +20,9 @@ model call per scene in ``prepare``), so a query costs well under a millisecond 
 
 from __future__ import annotations
 
-import json
+import math
 import os
+import re
 import threading
 from functools import lru_cache
 from importlib import resources
@@ -79,46 +80,76 @@ def minilm_embedder(device: str = "cpu") -> Embedder:
     return embed
 
 
+EXAMPLES_FILE_NAME = re.compile(r"class_examples_[A-Za-z0-9_.\-]{1,64}\.json")
+"""What ``--semantic-examples`` takes besides a version: the plain file name of a class-example set in
+``semantics/data`` (no folders: nothing outside the package's own data is read)."""
+MAX_EXAMPLES_BYTES = 2_000_000
+
+
 def _read_examples_file(filename: str) -> dict:
-    filename = EXAMPLE_FILES.get(filename, filename)
-    path = resources.files("safemanip.semantics").joinpath("data").joinpath(filename)
+    """A class-example file's JSON, by version (``v3``) or by the plain file name of a class-example set in
+    ``semantics/data``. Anything else is refused by name alone, and no error quotes the file's content."""
+    from safemanip.util.files import JSONInputError, parse_json
+
+    accepted = (f"a version ({', '.join(EXAMPLE_FILES)}) or the file name of a class-example set in "
+                f"safemanip/semantics/data (class_examples_<version>.json)")
+    given = str(filename)
+    name = EXAMPLE_FILES.get(given) or (f"class_examples_{given}.json" if re.fullmatch(r"v\d{1,3}", given) else given)
+    if not EXAMPLES_FILE_NAME.fullmatch(name):
+        raise ValueError(f"--semantic-examples {given[:80]!r} is not an example set: give {accepted}")
+    path = resources.files("safemanip.semantics").joinpath("data").joinpath(name)
     if not path.is_file():
-        raise ValueError(f"no class-example file {filename!r} in safemanip/semantics/data; shipped: "
+        raise ValueError(f"no class-example file {name!r} in safemanip/semantics/data; shipped: "
                          f"{', '.join(f'{k} ({v})' for k, v in EXAMPLE_FILES.items())}")
-    return json.loads(path.read_text(encoding="utf-8"))
+    try:
+        raw = parse_json(path.read_bytes(), name, max_bytes=MAX_EXAMPLES_BYTES, max_depth=8)
+    except JSONInputError as err:
+        raise ValueError(f"{name} is not a class-example file: {err.reason}") from None
+    if not isinstance(raw, dict):
+        raise ValueError(f"{name} is not a class-example file: not a JSON object")
+    return raw
 
 
 def load_class_examples(filename: str = DEFAULT_EXAMPLES) -> dict[str, list[str]]:
     """Example names per semantic class from ``semantics/data/`` (a file name or a version, "v1"/"v2")."""
     raw = _read_examples_file(filename)
     classes = raw.get("classes", {})
-    if tuple(classes) != SEMANTIC_CLASSES:
-        raise ValueError(f"{filename}: 'classes' must list exactly {SEMANTIC_CLASSES} in that order, "
-                         f"got {tuple(classes)}")
+    if not isinstance(classes, dict) or tuple(classes) != SEMANTIC_CLASSES:
+        raise ValueError(f"{filename} is not a class-example file: its 'classes' must list exactly "
+                         f"{SEMANTIC_CLASSES} in that order")
     for cls, names in classes.items():
-        if not names or not all(isinstance(n, str) and n.strip() for n in names):
-            raise ValueError(f"{filename}: class {cls!r} needs a non-empty list of non-empty names")
+        if not isinstance(names, list) or not names or not all(isinstance(n, str) and n.strip() for n in names):
+            raise ValueError(f"{filename} is not a class-example file: class {cls!r} needs a non-empty list of "
+                             f"non-empty names")
     return {cls: list(names) for cls, names in classes.items()}
 
 
 def load_decision_rule(filename: str = DEFAULT_EXAMPLES) -> dict:
     """The file's ``decision`` block, ``{"rule": ..., "margin": ...}``; files without one mean plain argmax."""
     raw = _read_examples_file(filename)
-    decision = dict(raw.get("decision") or {"rule": "argmax", "margin": 0.0})
-    if decision.get("rule") not in DECISION_RULES:
-        raise ValueError(f"{filename}: decision rule must be one of {DECISION_RULES}, got {decision.get('rule')!r}")
-    margin = float(decision.get("margin", 0.0))
+    decision = raw.get("decision") or {"rule": "argmax", "margin": 0.0}
+    if not isinstance(decision, dict) or decision.get("rule") not in DECISION_RULES:
+        raise ValueError(f"{filename}: its decision rule must be one of {DECISION_RULES}")
+    decision = dict(decision)
+
+    def number(key: str, default: float) -> float:
+        value = decision.get(key, default)
+        if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+            raise ValueError(f"{filename}: its decision block's {key} must be a finite number")
+        return float(value)
+
+    margin = number("margin", 0.0)
     if not 0.0 <= margin < 1.0:
         raise ValueError(f"{filename}: decision margin must be in [0, 1), got {margin}")
     decision["margin"] = margin if decision["rule"] != "argmax" else 0.0
     if decision["rule"] == "logistic_fragile_threshold":
-        threshold = float(decision.get("fragile_threshold", -1))
+        threshold = number("fragile_threshold", -1)
         if not 0.0 < threshold < 1.0:
             raise ValueError(f"{filename}: fragile_threshold must be in (0, 1), got {threshold}")
         decision["fragile_threshold"] = threshold
     if decision["rule"].startswith("logistic"):
         for key, default in LOGISTIC_DEFAULTS.items():
-            decision[key] = float(decision.get(key, default))
+            decision[key] = number(key, default)
     return decision
 
 

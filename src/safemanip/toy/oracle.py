@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from safemanip.toy.system import SPEC, ToyReachAvoidEnv, ToySpec, margins, sample_states, step_states  # noqa: F401
+from safemanip.util.files import parse_json, read_json_file
 
 
 # ------------------------------------------------------------------ the exact grid solution
@@ -185,13 +186,16 @@ def load_model(path: str | Path):
 
     from safemanip.rl.networks import Actor, Critic
 
+    from safemanip.rl.checkpoint import check_safetensors, read_checkpoint_meta
+
+    check_safetensors(path)  # the header as the Rust loader reads it, before the loader sees the file
     with safe_open(str(path), framework="pt") as f:
         header = f.metadata() or {}
     tensors = load_file(str(path))
-    meta = json.loads(header.get("meta", "{}"))
+    meta = parse_json(header.get("meta", "{}"), f"{path}: its metadata")
     sibling = Path(path).parent / "meta.json"  # a checkpoint folder: its config is beside the tensors
     if not meta and sibling.exists():
-        meta = {"train_config": json.loads(sibling.read_text())["config"]}
+        meta = {"train_config": read_checkpoint_meta(Path(path).parent)["config"]}
     actor_sd = {k[len("actor."):]: v for k, v in tensors.items() if k.startswith("actor.")}
     critic_sd = {k[len("critic."):]: v for k, v in tensors.items() if k.startswith("critic.")}
     weights = [actor_sd[k] for k in sorted((k for k in actor_sd if k.endswith("weight")),
@@ -414,14 +418,14 @@ def main(argv: list[str] | None = None) -> int:
         overrides = {}
         for item in args.set:
             key, _, value = item.partition("=")
-            overrides[key] = json.loads(value)
+            overrides[key] = parse_json(value, f"--set {key}")
         cfg = toy_config(args.out, args.minutes, seed=args.seed, **overrides)
         command = "python -m safemanip.toy " + " ".join(argv if argv is not None else sys.argv[1:])
         t0 = time.perf_counter()
         run_dir = train(cfg, progress=False, command=command)
         wall = time.perf_counter() - t0
         actor, critic, _ = load_model(run_dir / "checkpoint" / "state.safetensors")
-        summary = json.loads((run_dir / "summary.json").read_text())
+        summary = read_json_file(run_dir / "summary.json")
         meta = {"train_config": json.loads(cfg.to_json()), "command": command, "env_steps": summary["env_steps"],
                 "updates": summary["updates"], "wall_s": summary["wall_s"], "spec": asdict(SPEC)}
         if args.save_model:

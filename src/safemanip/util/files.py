@@ -1,15 +1,19 @@
 """Files written so that a crash, a kill or a concurrent writer never leaves a half-written result,
-output folders checked before any work starts, and one live writer per output folder."""
+output folders checked before any work starts, one live writer per output folder, and the one bounded
+JSON reader (``parse_json``/``read_json_file``) every file and server reply goes through."""
 
 from __future__ import annotations
 
 import contextlib
 import errno
 import fcntl
+import json
 import os
+import re
 import tempfile
+from itertools import accumulate
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Iterator
 
 
 class OutputError(ValueError):
@@ -117,3 +121,90 @@ class OutputLock:
 
     def __exit__(self, *exc) -> None:
         self.release()
+
+
+# ------------------------------------------------------------------------------------------ reading JSON
+MAX_JSON_BYTES = 10_000_000
+"""Largest JSON document read from a file or a server (10 MB: a policy's metadata, a checkpoint's meta.json, a
+sweep cell, a cache entry or a model's answer is a few kB)."""
+MAX_JSON_DEPTH = 64
+"""Deepest nesting of arrays and objects accepted (the package's own files nest fewer than 10 levels). Checked
+before parsing: Python's parser recurses once per level, so 100,000 levels would end in a RecursionError."""
+
+_JSON_STRING = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"', re.S)
+_NOT_BRACKET = re.compile(r"[^\[\]{}]+")
+_BRACKET_STEP = {"[": 1, "{": 1, "]": -1, "}": -1}
+
+
+class JSONInputError(ValueError):
+    """A JSON document (from a file or a server) that is refused: too large, nested too deep, not JSON, holding
+    NaN/Infinity or a key twice. ``reason`` says which, without the document's content."""
+
+    def __init__(self, message: str, reason: str):
+        super().__init__(message)
+        self.reason = reason
+
+
+def json_depth(text: str) -> int:
+    """The deepest nesting of arrays and objects in JSON ``text``, counted without parsing it (brackets inside
+    strings do not count)."""
+    brackets = _NOT_BRACKET.sub("", _JSON_STRING.sub('""', text))
+    return max(accumulate(map(_BRACKET_STEP.__getitem__, brackets)), default=0)
+
+
+def _refuse_constant(name: str):
+    raise ValueError(f"it holds {name}, which is not a JSON number")
+
+
+def _unique_keys(pairs: list) -> dict:
+    out: dict = {}
+    for key, value in pairs:
+        if key in out:
+            raise ValueError(f"it holds the key {key[:40]!r} twice")
+        out[key] = value
+    return out
+
+
+def parse_json(text: str | bytes, what: str, *, max_bytes: int = MAX_JSON_BYTES,
+               max_depth: int = MAX_JSON_DEPTH) -> Any:
+    """The one way the package parses JSON it did not just build itself (config files, policy metadata,
+    safetensors headers, checkpoints, sweep specs and results, logs, cache entries, a server's replies).
+
+    Size and nesting depth are checked before the parser sees the text; NaN/Infinity (not JSON) and a key given
+    twice in one object are refused. Raises ``JSONInputError``: "<what> is not valid JSON: <reason>"."""
+    def refuse(reason: str):
+        raise JSONInputError(f"{what} is not valid JSON: {reason}", reason) from None
+
+    if isinstance(text, (bytes, bytearray, memoryview)):
+        if len(text) > max_bytes:
+            refuse(f"{len(text):,} bytes, more than the {max_bytes:,} accepted")
+        try:
+            text = bytes(text).decode("utf-8")
+        except UnicodeDecodeError:
+            refuse("it is not UTF-8 text")
+    if len(text) > max_bytes:
+        refuse(f"{len(text):,} characters, more than the {max_bytes:,} accepted")
+    depth = json_depth(text)
+    if depth > max_depth:
+        refuse(f"it nests {depth:,} levels deep, more than the {max_depth} accepted")
+    try:
+        return json.loads(text, parse_constant=_refuse_constant, object_pairs_hook=_unique_keys)
+    except RecursionError:  # not reachable after the depth check; kept so that no input can end in a traceback
+        refuse("it nests too deep")
+    except ValueError as err:
+        refuse(str(err))
+
+
+def read_json_file(path: str | os.PathLike, what: str | None = None, *, max_bytes: int = MAX_JSON_BYTES,
+                   max_depth: int = MAX_JSON_DEPTH) -> Any:
+    """``parse_json`` of a file's content; a file larger than ``max_bytes`` is refused without being read.
+    OSError (a missing or unreadable file) is left to the caller."""
+    path = Path(path)
+    what = what or str(path)
+    with open(path, "rb") as f:
+        size = os.fstat(f.fileno()).st_size
+        if size > max_bytes:
+            raise JSONInputError(f"{what} is not valid JSON: {size:,} bytes, more than the {max_bytes:,} accepted",
+                                 f"{size:,} bytes, more than the {max_bytes:,} accepted")
+        data = f.read(max_bytes + 1)
+    return parse_json(data, what, max_bytes=max_bytes, max_depth=max_depth)

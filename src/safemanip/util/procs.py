@@ -87,11 +87,91 @@ def stop_on_signals(raise_exc: bool = True, signals=(signal.SIGINT, signal.SIGTE
             signal.signal(s, h)
 
 
+class WorkerDied(RuntimeError):
+    """A worker process (an evaluation worker, a rollout worker or a Ray actor) died or failed: the run stopped
+    and kept what was finished; the message says what happened and how to go on. Exit code 1."""
+
+    exit_code = 1
+
+
+def describe_exit(code: int | None) -> str:
+    """'exited with code 3' / 'was killed by SIGKILL' for a process exit code (negative: the signal)."""
+    if code is None:
+        return "died"
+    if code < 0:
+        try:
+            return f"was killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"was killed by signal {-code}"
+    return f"exited with code {code}"
+
+
+class ClusterUnreachable(ValueError):
+    """A Ray cluster address that is malformed or where no Ray cluster answers (exit code 2)."""
+
+
+RAY_ADDRESS_VARIABLE = "RAY_ADDRESS"
+PROBE_TIMEOUT_S = 5.0
+_HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + b"\x00\x00\x00\x04\x00\x00\x00\x00\x00"
+
+
+def ray_address(flag: str | None) -> tuple[str | None, str]:
+    """(address, where it came from) of the Ray cluster to join: the --address flag, else the RAY_ADDRESS
+    environment variable, else None (start a local instance). Never a file."""
+    if flag:
+        return flag, "--address"
+    env = os.environ.get(RAY_ADDRESS_VARIABLE, "").strip()
+    return (env, RAY_ADDRESS_VARIABLE) if env else (None, "")
+
+
+def check_ray_address(address: str, source: str = "--address", timeout_s: float = PROBE_TIMEOUT_S) -> None:
+    """Refuse (ClusterUnreachable, within about ``timeout_s`` seconds) an address where no Ray cluster answers.
+
+    HOST:PORT (or ray://HOST:PORT, Ray Client) is checked with a TCP connection and the HTTP/2 preface that every
+    gRPC server, Ray's GCS included, answers at once with a SETTINGS frame: ``ray.init`` itself waits minutes on a
+    port that is closed, filtered or held by another service. 'auto' (a cluster started on this machine) is
+    left to Ray, which looks it up locally."""
+    import socket
+
+    text = address.strip()
+    if text in ("auto", "local"):
+        return
+    target = text[len("ray://"):] if text.startswith("ray://") else text
+    host, _, port = target.rpartition(":")
+    host = host.strip("[]")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536 or any(c.isspace() or c == "/" for c in target):
+        raise ClusterUnreachable(f"{source} {address[:100]!r} is not a Ray cluster address: give HOST:PORT (e.g. "
+                                 f"10.0.0.5:6379, the GCS address `ray start --head` prints), ray://HOST:PORT or auto")
+    start = time.monotonic()
+    try:
+        with socket.create_connection((host, int(port)), timeout=timeout_s) as sock:
+            sock.settimeout(max(0.5, timeout_s - (time.monotonic() - start)))
+            sock.sendall(_HTTP2_PREFACE)
+            head = b""
+            while len(head) < 9:
+                part = sock.recv(9 - len(head))
+                if not part:
+                    break
+                head += part
+    except socket.timeout:
+        raise ClusterUnreachable(f"{source} {address}: no Ray cluster answered within {timeout_s:g} s (the address is "
+                                 f"filtered, or the port belongs to another service); check the address, that the "
+                                 f"cluster runs (`ray status` on its head node) and the firewall") from None
+    except OSError as err:
+        raise ClusterUnreachable(f"{source} {address}: cannot reach a Ray cluster there ({err.strerror or err}); start "
+                                 f"it with `ray start --head` on that machine or fix the address") from None
+    if len(head) < 9 or head[3] != 0x04:  # an HTTP/2 SETTINGS frame: a gRPC server such as Ray's GCS
+        raise ClusterUnreachable(f"{source} {address}: the service on that port is not a Ray cluster (it does not "
+                                 f"speak gRPC); give the GCS address `ray start --head` prints (port 6379 by default)")
+
+
 _REAPER = None
 
 
 def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
-    """``ray.init`` for the cluster at ``address``, or a local instance that does not outlive this process.
+    """``ray.init`` for the cluster at ``address`` (the --address flag) or at RAY_ADDRESS, each checked first
+    (``check_ray_address``: an address where no cluster answers fails within seconds, not minutes), else a
+    local instance that does not outlive this process.
 
     A local instance's own processes (GCS, raylet, its workers and agents) are descendants of this one; a
     watchdog (``util/reaper.py``) kills any of them still running once this process is gone, even after
@@ -100,7 +180,9 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
     import ray
 
     kwargs = {"include_dashboard": False, "log_to_driver": False}
+    address, source = ray_address(address)
     if address:
+        check_ray_address(address, source)
         ray.init(address=address, **kwargs)
         return
     if _REAPER is None or _REAPER.poll() is not None:  # first: a kill during ray.init leaves nothing either
