@@ -19,7 +19,7 @@ from safetensors.numpy import save_file
 from safemanip.cli import main
 from safemanip.rl.checkpoint import POLICY_FORMAT, SHIPPED_POLICIES
 
-POLICY = str(SHIPPED_POLICIES / "rarl-k2-conservative.safetensors")
+POLICY = str(SHIPPED_POLICIES / "rarl-k2-conservative-s0.safetensors")
 EVAL = ["eval", "--policy", POLICY, "--episodes", "1", "--workers", "1", "--no-progress"]
 
 
@@ -355,7 +355,7 @@ def test_sweep_refuses_bad_input(capsys, tmp_path):
     assert_refused(capsys, ["sweep", "n5-fragile", "--out", a_file], "is a file")
     sem = tmp_path / "sem.json"
     sem.write_text(json.dumps({"name": "s", "figure": "table", "episodes": 1, "judge": "conservative",
-                               "policies": ["policies/rarl-k2-conservative.safetensors"], "n_objects": [3],
+                               "policies": ["policies/rarl-k2-conservative-s0.safetensors"], "n_objects": [3],
                                "selectors": ["dynamic-knn"], "semantics": ["99999999999999999999 fragile"]}))
     assert_refused(capsys, ["sweep", sem, "--out", tmp_path / "o"], "at most 8 objects")
 

@@ -200,9 +200,9 @@ class SilentPort:
 def _ray_commands(tmp_path: Path, address: str) -> dict[str, list]:
     sweep = tmp_path / "s.json"
     sweep.write_text(json.dumps({"name": "s", "figure": "table", "episodes": 1, "judge": "conservative",
-                                 "policies": ["policies/rarl-k2-conservative.safetensors"], "n_objects": [2],
+                                 "policies": ["policies/rarl-k2-conservative-s0.safetensors"], "n_objects": [2],
                                  "selectors": ["full"]}))
-    return {"eval": ["eval", "--policy", "rarl-k2-conservative", "--episodes", "1", "--backend", "ray", "--address",
+    return {"eval": ["eval", "--policy", "rarl-k2-conservative-s0", "--episodes", "1", "--backend", "ray", "--address",
                      address, "--out", tmp_path / "out"],
             "train": ["train", "--backend", "ray", "--address", address, "--out", tmp_path / "out", "--no-progress"],
             "sweep": ["sweep", sweep, "--backend", "ray", "--address", address, "--out", tmp_path / "out"]}

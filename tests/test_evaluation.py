@@ -32,8 +32,10 @@ def make_policy(path, k, constraints="conservative", hidden=(16, 16), seed=0, go
         from safemanip.scene.config import GEOMETRY
 
         w = np.zeros((3, d), np.float32)
-        w[0, 6] = w[1, 7] = -4.0  # obs[6:8] = bottom box x, y
-        b = np.array([4.0 * GEOMETRY.goal_xy[0], 4.0 * GEOMETRY.goal_xy[1], 0.0], np.float32)
+        # obs[6:8] = bottom box x, y; a weak pull across, so that the pull out stays straight (heading 10 deg aside
+        # drags the top box along) and the box heads for the goal once it is out
+        w[0, 6], w[1, 7] = -4.0, -1.0
+        b = np.array([4.0 * GEOMETRY.goal_xy[0], 1.0 * GEOMETRY.goal_xy[1], 0.0], np.float32)
         arrays, hidden = [w, b], ()
     else:
         sizes = [d, *hidden, 3]

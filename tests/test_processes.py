@@ -106,7 +106,7 @@ def test_kill_9_of_train_leaves_no_process(tmp_path, extra):
 
 @pytest.mark.slow
 def test_kill_9_of_eval_leaves_no_process(tmp_path):
-    proc = start(["eval", "--policy", "rarl-k2-conservative", "--episodes", "400", "--workers", "2", "--no-progress",
+    proc = start(["eval", "--policy", "rarl-k2-conservative-s0", "--episodes", "400", "--workers", "2", "--no-progress",
                   "--out", tmp_path / "ev"], tmp_path, "eval.log")
     workers = wait_for_workers(proc, 2)
     kill_and_check_orphans(proc, workers)
@@ -129,7 +129,7 @@ def test_reaper_kills_what_a_killed_process_left_behind(tmp_path):
 def test_kill_9_of_a_ray_eval_leaves_no_process(tmp_path):
     """With --backend ray the local Ray instance (GCS, raylet, its workers) goes too."""
     pytest.importorskip("ray")
-    proc = start(["eval", "--policy", "rarl-k2-conservative", "--episodes", "400", "--workers", "2", "--backend", "ray",
+    proc = start(["eval", "--policy", "rarl-k2-conservative-s0", "--episodes", "400", "--workers", "2", "--backend", "ray",
                   "--no-progress", "--out", tmp_path / "ev"], tmp_path, "eval.log")
     workers = wait_for_workers(proc, 4, timeout=120.0)  # at least GCS, raylet and the two rollout workers
     kill_and_check_orphans(proc, workers)
@@ -145,7 +145,7 @@ def test_kill_9_of_sweep_leaves_no_process(tmp_path):
 def _sweep_config(tmp_path: Path, episodes: int) -> Path:
     cfg = tmp_path / "s.json"
     cfg.write_text(json.dumps({"name": "s", "figure": "table", "episodes": episodes, "judge": "conservative",
-                               "policies": ["policies/rarl-k2-conservative.safetensors"], "n_objects": [3],
+                               "policies": ["policies/rarl-k2-conservative-s0.safetensors"], "n_objects": [3],
                                "selectors": ["dynamic-knn"]}))
     return cfg
 
@@ -176,7 +176,7 @@ def test_sigint_to_sweep_stops_cleanly_and_keeps_no_partial_cell(tmp_path):
 @pytest.mark.slow
 def test_sigint_to_eval_writes_the_finished_episodes(tmp_path):
     out = tmp_path / "ev"
-    workers = sigint_after(["eval", "--policy", "rarl-k2-conservative", "--episodes", "2000", "--workers", "2",
+    workers = sigint_after(["eval", "--policy", "rarl-k2-conservative-s0", "--episodes", "2000", "--workers", "2",
                             "--chunk-size", "2", "--no-progress", "--out", out], tmp_path, "eval.log", 4,
                            "interrupted by SIGINT")
     summary = json.loads((out / "summary.json").read_text())

@@ -12,16 +12,24 @@ from test_evaluation import make_policy
 
 
 def test_shipped_sweeps_load_and_form_the_paper_grids():
-    assert {"fig5", "fig6", "table1"} <= set(available())
+    assert {"fig4", "fig5", "fig6", "table1", "table2"} <= set(available())
     fig5 = cells_of(load_config("fig5"))
+    policies = [c for c in fig5 if c.algorithm != "planner"]
     assert all(c.k <= c.n_objects for c in fig5)
-    assert {c.selector for c in fig5 if c.k < c.n_objects} == {"static-knn", "dynamic-knn"}
-    assert {c.selector for c in fig5 if c.k == c.n_objects} == {"full"}
-    assert len(fig5) == 2 * (4 + 3 + 2 + 1) + 4  # k<N cells x 2 selectors + one full-state cell per N
+    assert {c.selector for c in policies if c.k < c.n_objects} == {"static-knn", "dynamic-knn"}
+    assert {c.selector for c in policies if c.k == c.n_objects} == {"full"}
+    assert {c.train_seed for c in policies} == {0, 1, 2} and {c.variant for c in policies} == {"", "selaware"}
+    per_seed = 2 * (4 + 3 + 2 + 1) + 4 + 2 * (4 + 3 + 2 + 1) + 3  # paper's way: k<N x 2 selectors + full per N; selaware
+    assert len(policies) == 3 * per_seed
+    assert sorted(c.n_objects for c in fig5 if c.algorithm == "planner") == [3, 4, 5, 6]  # the bound on each N
     fig6 = cells_of(load_config("fig6"))
     assert {c.n_objects for c in fig6} == {6}
-    assert all(c.episodes == 2000 for c in fig5 + fig6)
+    assert {c.id for c in fig6} <= {c.id for c in fig5}  # the same cells: fig6 draws fig5's results folder
+    assert all(c.episodes == 1000 for c in fig5 + fig6)
     assert cells_of(load_config("fig5"), episodes=10)[0].episodes == 10
+    table1 = cells_of(load_config("table1"))
+    assert {c.policy for c in table1 if c.algorithm == "planner"} == {"planner-all", "planner-fragile"}
+    assert all(c.scenes == "gate_share=1.0,layout=gate" for c in table1)
 
 
 def test_bad_sweep_configs_are_rejected(tmp_path):
@@ -104,7 +112,9 @@ def test_render_only_uses_stored_results(tmp_path, name):
     assert status["ran"] == [] and status["skipped"] == []
     table = Path(status["table"]).read_text()
     assert "| k |" in table or "| semantics |" in table or "| algorithm |" in table
-    assert table.count("\n| rarl-") + table.count("\n| vanilla-") == len(results)  # one row per cell
+    policies = [r for r in results if r["cell"]["algorithm"] != "planner"]
+    assert table.count("\n| rarl-") + table.count("\n| vanilla-") == len(policies)  # one row per cell and seed
+    assert "(bound)" in table  # the planner's row in the pivot
     if cfg["figure"] in ("fig4", "fig5", "fig6"):
         png = Path(status["figure"])
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
@@ -136,26 +146,23 @@ def test_cells_that_query_the_semantic_backend_go_stale_with_its_version(tmp_pat
 
 
 def test_printed_train_command_reproduces_the_shipped_recipe():
-    """A skipped cell's command, parsed by ``safemanip train``, gives the shipped π_2's training config (bar
-    k, the run folder and the bookkeeping fields), so Fig. 5's missing π_3 and π_5 are trained alike."""
+    """A skipped cell's command, parsed by ``safemanip train``, gives the shipped π_2's training config (bar k, the
+    seed, the run folder and the bookkeeping fields), so a missing policy is trained alike."""
     import shlex
 
     from safemanip.cli import build_parser
     from safemanip.cli.train import FLAGS
     from safemanip.rl.config import TrainConfig
     from safemanip.rl.checkpoint import load_policy
-    from safemanip.scene.placement import LAYOUTS
 
-    cell = next(c for c in cells_of(load_config("fig5")) if c.k == 3)
+    cell = next(c for c in cells_of(load_config("fig5")) if c.k == 3 and c.variant == "" and c.train_seed == 1)
     command = cell.train_command().split(" && ")[0]
     args = build_parser().parse_args(shlex.split(command)[1:])
     given = {field: getattr(args, field) for field, _, _ in FLAGS.values() if getattr(args, field) is not None}
     printed = json.loads(json.dumps(TrainConfig.from_dict(given).__dict__))  # as stored: tuples become lists
-    shipped = load_policy("rarl-k2-conservative")[1]["train_config"]
-    if printed["near_path_fraction"] is None:  # None: the layout's own share, which the shipped π_2 spelt out
-        printed["near_path_fraction"] = LAYOUTS[printed["layout"]].near_fraction
+    shipped = load_policy("rarl-k2-conservative-s0")[1]["train_config"]
     differ = {f for f in printed if f in shipped and printed[f] != shipped[f]}
-    assert differ == {"k", "out_dir"}, differ
+    assert differ == {"k", "seed", "out_dir"}, differ
 
 
 def test_a_missing_policy_in_another_folder_is_skipped_not_replaced_by_the_shipped_one(tmp_path, monkeypatch):
@@ -163,9 +170,9 @@ def test_a_missing_policy_in_another_folder_is_skipped_not_replaced_by_the_shipp
     must not silently evaluate the shipped π_2 (it once did, and stored the cells as done)."""
     from safemanip.rl.checkpoint import SHIPPED_POLICIES, resolve_policy
 
-    assert resolve_policy("rarl-k2-conservative") == SHIPPED_POLICIES / "rarl-k2-conservative.safetensors"
-    assert resolve_policy("policies/rarl-k2-conservative.safetensors").resolve() == \
-        (SHIPPED_POLICIES / "rarl-k2-conservative.safetensors").resolve()  # from any working folder
+    assert resolve_policy("rarl-k2-conservative-s0") == SHIPPED_POLICIES / "rarl-k2-conservative-s0.safetensors"
+    assert resolve_policy("policies/rarl-k2-conservative-s0.safetensors").resolve() == \
+        (SHIPPED_POLICIES / "rarl-k2-conservative-s0.safetensors").resolve()  # from any working folder
     elsewhere = tmp_path / "runs" / "rarl-k2-conservative.safetensors"
     assert resolve_policy(elsewhere) == elsewhere and not elsewhere.exists()
     relative = "runs/selaware/rarl-k2-conservative.safetensors"

@@ -35,7 +35,7 @@ def register(sub) -> None:
     demo.add_argument("--controller", default="policy", choices=["policy", "scripted", "planner"],
                       help="the shipped reach-avoid policy (default), the scripted baseline, or the privileged "
                            "planner that sees the whole scene")
-    demo.add_argument("--policy", default="rarl-k2-conservative", help="policy file or shipped policy name")
+    demo.add_argument("--policy", default="rarl-k2-conservative-s0", help="policy file or shipped policy name")
     demo.add_argument("--selector", default="dynamic-knn", help="object selector feeding the policy its k objects")
     demo.add_argument("--seed", type=SEED, default=7)
     demo.add_argument("--n-objects", type=int_in(0, MAX_OBJECTS), default=4, help="objects in the scene (N)")

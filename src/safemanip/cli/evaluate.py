@@ -6,15 +6,15 @@ import argparse
 import json
 import sys
 
-from safemanip.cli.common import CliError, add_compute_backend, add_vlm_options, int_in
+from safemanip.cli.common import CliError, add_compute_backend, add_vlm_options, float_in, int_in
 from safemanip.scene.placement import LAYOUTS
 
 EVAL_EXAMPLES = """examples:
-  safemanip eval --policy rarl-k2-conservative --episodes 500 --seed 7 --judge conservative
+  safemanip eval --policy rarl-k2-conservative-s0 --episodes 500 --seed 7 --judge conservative
       (k == N: the full-state policy in its own setting; a shipped policy by name)
-  safemanip eval --policy rarl-k2-conservative --n-objects 6 --selector dynamic-knn \\
+  safemanip eval --policy rarl-k2-conservative-s0 --n-objects 6 --selector dynamic-knn \\
       --judge conservative --episodes 2000 --out results/k2-n6-dyn
-  safemanip eval --policy rarl-k2-conservative --semantics "2 fragile, 3 durable" \\
+  safemanip eval --policy rarl-k2-conservative-s0 --semantics "2 fragile, 3 durable" \\
       --selector dynamic-vlm --episodes 500 --backend ray
   safemanip eval --policy runs/k2-all/policy.safetensors --semantics "2 fragile, 2 soft, 1 durable" \\
       --selector dynamic-vlm --constraints vlm --vlm-backend openai --vlm-model gpt-4o --vlm-cache vlm_cache
@@ -44,6 +44,7 @@ def _cmd_eval(args) -> int:
                       vlm_timeout=args.vlm_timeout, vlm_episode_budget=args.vlm_episode_budget,
                       vlm_run_budget=args.vlm_run_budget, vlm_max_failures=args.vlm_max_failures,
                       max_episode_steps=args.max_episode_steps, embodiment=args.embodiment, layout=args.layout,
+                      gate_share=args.gate_share, exit_share=args.exit_share, planner=args.planner,
                       chunk_size=args.chunk_size, progress=not args.no_progress)
     report = evaluate(req)
     print(report["text"])
@@ -95,7 +96,10 @@ def register(subparsers) -> None:
     ev = subparsers.add_parser(
         "eval", help="roll a policy out with object/constraint selection; success and failures with 95%% intervals",
         epilog=EVAL_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ev.add_argument("--policy", required=True, help="policy file (.safetensors) or training run folder")
+    ev.add_argument("--policy", help="policy file (.safetensors), a shipped policy's name or a training run folder")
+    ev.add_argument("--planner", choices=["all", "fragile"],
+                    help="instead of a policy, the privileged planner keeping clear of all objects or of the fragile "
+                         "ones only: the bound on the same scenes (give --n-objects or --semantics)")
     ev.add_argument("--n-objects", type=int_in(0, MAX_OBJECTS),
                     help="clutter objects N (default: the number of --semantics classes, else the policy's k)")
     ev.add_argument("--semantics", help="classes of the clutter, e.g. '2 fragile, 3 durable' (default: any objects)")
@@ -115,7 +119,12 @@ def register(subparsers) -> None:
                     help="allow N < k: fill empty policy slots with far-away dummy objects")
     ev.add_argument("--max-episode-steps", type=int_in(1, 100_000), help="override the policy's episode length")
     ev.add_argument("--layout", choices=list(LAYOUTS),
-                    help="scene layout: route or narrow (default: the one the policy was trained on)")
+                    help="scene layout: route, narrow, gate or exit (default: the one the policy was trained on)")
+    ev.add_argument("--gate-share", type=float_in(0.0, 1.0),
+                    help="share of gate (semantic-only) scenes, 1 for gates only (default: the layout's)")
+    ev.add_argument("--exit-share", type=float_in(0.0, 1.0),
+                    help="share of exit scenes (a fragile object past the pull lane), 1 for those only (default: the "
+                         "layout's)")
     ev.add_argument("--embodiment", choices=["panda", "hand"],
                     help="robot to evaluate on (default: the policy's own; another one is refused)")
     ev.add_argument("--chunk-size", type=int_in(1, 100_000), help="episodes per worker task (default: about 8 tasks per worker)")
@@ -129,7 +138,7 @@ def register(subparsers) -> None:
                                epilog=SWEEP_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     sw.add_argument("name", nargs="?", help="a shipped sweep (fig5, fig6, table1, ...) or a sweep .json file")
     sw.add_argument("--episodes", type=int_in(1, SEED_STRIDE), help="episodes per cell (default: the sweep's, 2000 for the figures)")
-    sw.add_argument("--out", help="results folder (default: results/sweeps/NAME)")
+    sw.add_argument("--out", help="results folder (default: results/FOLDER, the sweep's own)")
     sw.add_argument("--render-only", action="store_true", help="only redraw figure and table from stored results")
     sw.add_argument("--list", action="store_true", help="list the shipped sweeps")
     add_vlm_options(sw)

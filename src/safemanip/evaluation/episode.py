@@ -71,6 +71,7 @@ def run_episode(env, actor: Callable[[np.ndarray], np.ndarray], reducer: Reducer
     """
     builder = builder or EnvViewBuilder()
     env.reset(seed=int(seed))
+    kind = env.placement.kind
     if after_reset is not None:
         after_reset(env)
     builder.reset(env)
@@ -111,6 +112,35 @@ def run_episode(env, actor: Callable[[np.ndarray], np.ndarray], reducer: Reducer
         state = env.scene_state()
         view = builder.view(env, state, t)
 
+    return _record(env, info, seed, ids, assigned, changes, kind, {
+        "object_queries": _stat(object_selector, "queries") - q0[0],
+        "object_fallbacks": _stat(object_selector, "fallbacks") - q0[1],
+        "constraint_queries": _stat(constraint_selector, "queries") - q0[2],
+        "constraint_fallbacks": _stat(constraint_selector, "fallbacks") - q0[3],
+        "vlm_breaker_open": _breaker_open(object_selector, constraint_selector)})
+
+
+def run_planner_episode(env, planner, seed: int) -> dict:
+    """One episode of the privileged planner (``control.planner.GridPlanner``), which sees the whole scene: the
+    bound a cell's policy is measured against, on the same scenes. Its record has the policy's columns (nothing
+    selected, nothing queried)."""
+    _, info = env.reset(seed=int(seed))
+    kind = env.placement.kind
+    planner.reset(env)
+    while True:
+        _, _, terminated, truncated, info = env.step(planner.act(info, env))
+        if terminated or truncated:
+            break
+    everything = tuple(range(len(env.names)))
+    return _record(env, info, seed, list(everything), list(env.constraints), [(0, everything)], kind,
+                   {"object_queries": 0, "object_fallbacks": 0, "constraint_queries": 0, "constraint_fallbacks": 0,
+                    "vlm_breaker_open": ""})
+
+
+def _record(env, info: dict, seed: int, ids: list[int], assigned: list[str], changes: list, kind: str,
+            counters: dict) -> dict:
+    """An episode's record from its last step (plain types, ready for CSV/JSON): the one place an env event becomes
+    a category."""
     event, obj = info["event"], info["object_id"]
     selected = None if obj is None else obj in ids
     if event in _FIXED:
@@ -124,16 +154,12 @@ def run_episode(env, actor: Callable[[np.ndarray], np.ndarray], reducer: Reducer
     outcome = "success" if category == "success" else ("failure" if category in SAFETY_VIOLATIONS else category)
     return {
         "seed": int(seed), "outcome": outcome, "category": category, "event": event, "length": int(info["t"]),
+        "scene_kind": kind,
         "box_speed": round(float(np.linalg.norm(env.scene_state().bottom_vel)), 4),  # at the end: placed, not passing
         "object": info["object"] or "", "object_id": "" if obj is None else int(obj),
         "object_class": "" if obj is None else CLASS_OF_CONSTRAINT[env.constraints[obj]],
         "selected": "" if selected is None else ("yes" if selected else "no"),
         "names": ";".join(env.names), "judge_constraints": ";".join(env.constraints),
         "assigned_constraints": ";".join(assigned), "selections": format_selections(changes),
-        "selection_changes": len(changes) - 1,
-        "object_queries": _stat(object_selector, "queries") - q0[0],
-        "object_fallbacks": _stat(object_selector, "fallbacks") - q0[1],
-        "constraint_queries": _stat(constraint_selector, "queries") - q0[2],
-        "constraint_fallbacks": _stat(constraint_selector, "fallbacks") - q0[3],
-        "vlm_breaker_open": _breaker_open(object_selector, constraint_selector),
+        "selection_changes": len(changes) - 1, **counters,
     }

@@ -50,7 +50,7 @@ class EvalConfigError(ValueError):
 
 @dataclass
 class EvalRequest:
-    policy: str
+    policy: str | None
     n_objects: int | None = None
     """Scene size N (default: the number of --semantics classes, else the policy's k)."""
     semantics: str | None = None
@@ -79,7 +79,15 @@ class EvalRequest:
     vlm_max_failures: int | None = None
     max_episode_steps: int | None = None
     layout: str | None = None
-    """Scene layout, 'route' or 'narrow' (``scene.placement.LAYOUTS``; default: the one the policy was trained on)."""
+    """Scene layout, 'route', 'narrow', 'gate' or 'exit' (``scene.placement.LAYOUTS``; default: the one the policy
+    was trained on)."""
+    gate_share: float | None = None
+    """Share of gate scenes (``scene.placement.SCENE_KINDS``; default: the layout's). 1 evaluates on gates only."""
+    exit_share: float | None = None
+    """Share of exit scenes (default: the layout's). 1 evaluates on exit scenes only."""
+    planner: str | None = None
+    """Instead of a policy, the privileged planner that keeps clear of 'all' objects or of the 'fragile' ones only:
+    the bound on the same scenes (no --policy then; the scene is the one --layout and the shares describe)."""
     embodiment: str | None = None
     """Robot to evaluate on (default: the one the policy was trained on; another one is refused)."""
     chunk_size: int | None = None
@@ -234,6 +242,11 @@ def prepare(req: EvalRequest) -> Prepared:
         except ValueError as err:
             problems.append(f"--semantics: {err}")
 
+    if req.planner is not None:
+        return _prepare_planner(req, problems, notes, classes)
+    if req.policy is None:
+        problems.append("give --policy (a policy file or a shipped policy's name), or --planner all|fragile")
+        raise EvalConfigError("cannot run this evaluation:\n  - " + "\n  - ".join(problems))
     arrays, meta = _policy_problems(req, problems)
     k = int(meta["k"]) if meta else None
     n = req.n_objects
@@ -281,6 +294,7 @@ def prepare(req: EvalRequest) -> Prepared:
                   "clear_route": env_train.get("clear_route", True), "layout": env_train.get("layout", "route")}
     else:  # another layout, with its own share of objects beside the route
         layout = {"near_path_fraction": None, "clear_route": True, "layout": req.layout}
+    layout.update(gate_share=req.gate_share, exit_share=req.exit_share)
     env_kwargs = {"n_objects": n, "classes": classes, "constraints": JUDGES[req.judge], **layout,
                   "max_episode_steps": req.max_episode_steps or env_train.get("max_episode_steps", 300),
                   "embodiment": env_train["embodiment"], "action_curve": policy_action_curve(meta)}
@@ -293,6 +307,44 @@ def prepare(req: EvalRequest) -> Prepared:
     spec = EvalSpec(actor_arrays=arrays, k=k, policy_constraints=meta["constraints"], env_kwargs=env_kwargs,
                     selector=selector, constraints=constraints, options=options, pad=req.pad,
                     object_size=policy_object_size(meta))
+    seeds = [req.seed * SEED_STRIDE + i for i in range(req.episodes)]
+    return Prepared(req, spec, meta, seeds, n, notes)
+
+
+def _prepare_planner(req: EvalRequest, problems: list[str], notes: list[str], classes) -> Prepared:
+    """``prepare`` for the planner bound: the scenes the request describes, the planner in place of a policy."""
+    from safemanip.control.planner import PLANNER_AVOID
+    from safemanip.scene.config import MAX_OBJECTS, SceneConfig
+    from safemanip.scene.placement import LAYOUTS
+
+    if req.planner not in PLANNER_AVOID:
+        problems.append(f"--planner must be one of {', '.join(PLANNER_AVOID)}, got {req.planner!r}")
+    if req.policy is not None:
+        problems.append("--planner runs the privileged planner instead of a policy: drop --policy")
+    for flag, given in (("--selector", req.selector not in (None, "full")), ("--constraints", req.constraints),
+                        ("--pad", req.pad)):
+        if given:
+            problems.append(f"{flag} does not apply to --planner (it sees every object with its judged constraint)")
+    n = req.n_objects if req.n_objects is not None else (len(classes) if classes is not None else None)
+    if n is None:
+        problems.append("--planner needs the scene size: --n-objects N or --semantics")
+    layout = req.layout or "route"
+    if n is not None and layout in LAYOUTS:
+        try:
+            SceneConfig(n_objects=n, classes=classes, layout=layout, gate_share=req.gate_share,
+                        exit_share=req.exit_share)
+        except ValueError as err:
+            problems.append(f"scene: {err}")
+    if n is not None and not 0 <= n <= MAX_OBJECTS:
+        problems.append(f"--n-objects must be 0..{MAX_OBJECTS}, got {n}")
+    if problems:
+        raise EvalConfigError("cannot run this evaluation:\n  - " + "\n  - ".join(problems))
+    env_kwargs = {"n_objects": n, "classes": classes, "constraints": JUDGES[req.judge], "near_path_fraction": None,
+                  "clear_route": True, "layout": layout, "gate_share": req.gate_share, "exit_share": req.exit_share,
+                  "max_episode_steps": req.max_episode_steps or 300, "embodiment": req.embodiment or "panda"}
+    spec = EvalSpec(actor_arrays=[], k=n, policy_constraints="all", env_kwargs=env_kwargs, selector="full",
+                    constraints="ground-truth", planner=req.planner)
+    meta = {"algorithm": "planner", "k": n, "constraints": "all", "planner": req.planner}
     seeds = [req.seed * SEED_STRIDE + i for i in range(req.episodes)]
     return Prepared(req, spec, meta, seeds, n, notes)
 
@@ -325,6 +377,17 @@ def _quantiles(values: list[float]) -> dict | None:
     return {"median": float(np.median(values)), "p95": float(np.percentile(values, 95)), "max": float(np.max(values))}
 
 
+def _by_scene_kind(records: list[dict]) -> dict:
+    """Per scene kind (``scene.placement.SCENE_KINDS``) present: its episodes, success and top-box violations."""
+    out = {}
+    for kind in sorted({r.get("scene_kind", "open") for r in records}):
+        mine = [r for r in records if r.get("scene_kind", "open") == kind]
+        cats = Counter(r["category"] for r in mine)
+        out[kind] = {"episodes": len(mine), "success": _rate(cats["success"], len(mine)),
+                     "top_box": _rate(cats["top_box"], len(mine))}
+    return out
+
+
 def summarize(records: list[dict]) -> dict:
     n = len(records)
     cats = Counter(r["category"] for r in records)
@@ -345,12 +408,14 @@ def summarize(records: list[dict]) -> dict:
         "selector_queries": {key: int(sum(r[key] for r in records)) for key in
                              ("object_queries", "object_fallbacks", "constraint_queries", "constraint_fallbacks")},
         "vlm_breaker_open_episodes": int(sum(r.get("vlm_breaker_open") == "yes" for r in records)),
+        "by_scene_kind": _by_scene_kind(records),
     }
 
 
 def describe(prep: Prepared) -> dict:
     req, meta, spec = prep.request, prep.meta, prep.spec
-    return {"policy": str(req.policy), "algorithm": meta.get("algorithm"), "k": spec.k,
+    policy = f"planner (avoid {req.planner})" if req.planner else str(req.policy)
+    return {"policy": policy, "algorithm": meta.get("algorithm"), "k": spec.k,
             "policy_constraints": spec.policy_constraints, "n_objects": prep.n_objects, "semantics": req.semantics,
             "selector": spec.selector, "constraints": spec.constraints, "judge": req.judge, "pad": spec.pad,
             "interval": spec.options.interval, "vlm": ({"backend": spec.options.vlm_backend, "model": req.vlm_model,

@@ -53,6 +53,9 @@ class EvalSpec:
     camera: str = "front"
     object_size: bool = False
     """The policy's slots carry footprint radii (it was trained with ``object_size``)."""
+    planner: str | None = None
+    """Instead of the policy, the privileged planner keeping clear of 'all' objects or of the 'fragile' ones only
+    (``control.planner.PLANNER_AVOID``): the bound on the same scenes."""
 
 
 @contextlib.contextmanager
@@ -77,6 +80,17 @@ def run_chunk(spec: EvalSpec, seeds: list[int], on_record: Callable[[dict], None
     with one_blas_thread():
         env = SlideOutEnv(**spec.env_kwargs)
         try:
+            if spec.planner is not None:
+                from safemanip.control.planner import GridPlanner
+                from safemanip.evaluation.episode import run_planner_episode
+
+                planner = GridPlanner(avoid=spec.planner)
+                records = []
+                for s in seeds:
+                    records.append(run_planner_episode(env, planner, s))
+                    if on_record is not None:
+                        on_record(records[-1])
+                return records
             actor = make_numpy_actor(spec.actor_arrays)
             reducer = Reducer(spec.k, spec.policy_constraints, pad=spec.pad, empty_slots=actor.network == "set",
                               object_size=spec.object_size)

@@ -4,9 +4,11 @@ rendered as the paper's figure and a markdown table from the stored results alon
 A sweep config is a JSON file (shipped ones live in ``evaluation/sweeps/``; a path to your own works
 too)::
 
-  {"name": "fig5", "title": "...", "figure": "fig4" | "fig5" | "fig6" | "table",
-   "episodes": 2000, "seed": 12, "judge": "conservative" | "ground-truth",
-   "policies": ["policies/rarl-k2-conservative.safetensors", ...],   each entry may also be
+  {"name": "fig5", "folder": "exit/fig5", "title": "...", "figure": "fig4" | "fig5" | "fig6" | "table",
+   "episodes": 1000, "seed": 32, "judge": "conservative" | "ground-truth",
+   "scenes": {"layout": "exit", "exit_share": 1.0},   optional: the scenes of every cell (default: each
+                                               policy's own layout)
+   "policies": ["policies/rarl-k2-conservative-s0.safetensors", ...],   each entry may also be
                                                {"path": ..., "n_objects": [...], "semantics": [...]}
                                                to give that policy its own N and semantics
    "n_objects": [3, 4, 5, 6], "semantics": [null | "2 fragile, 3 durable", ...],
@@ -15,20 +17,24 @@ too)::
                                                the product of selectors x constraints
    "k_equals_n_selector": "full",              optional: selector used when k == N (the full-state
                                                policy sees every object in its training layout)
+   "bounds": ["all", "fragile"],               optional: the privileged planner on the same scenes, keeping
+                                               clear of every object or of the fragile ones only
    "table": {"rows": ["k"], "columns": ["n_objects", "selector"]}}
 
-``seed`` is the episode seed block (block B = seeds B x 100,000 + i). The shipped sweeps report on block
-12, a block reserved for reported results: no checkpoint, hyper-parameter or classifier is ever chosen on
-it (selection uses block 8).
+``seed`` is the episode seed block (block B = seeds B x 100,000 + i). The shipped sweeps report on blocks
+31-34, blocks reserved for reported results: no checkpoint, hyper-parameter or classifier is ever chosen on
+them (a run's final or best policy is chosen on block 30, ``results/training/promote.py``).
 
-Policy files are named ``{algorithm}-k{k}-{constraints}.safetensors``, so a cell knows its k (and how
-to train the policy) before the file exists. Cells with k > N are not applicable and left out; a
-cell whose policy file is missing is reported as skipped, with the command that trains it.
+Policy files are named ``{algorithm}-k{k}-{constraints}[-selaware][-s{seed}].safetensors``, so a cell knows its
+k, how its policy was trained and its training seed before the file exists; the table and the figures pool the
+training seeds of one method (``pool_seeds``). Cells with k > N are not applicable and left out; a cell whose
+policy file is missing is reported as skipped, with the command that trains it.
 
-Layout of the output folder (default ``results/sweeps/NAME``)::
+Layout of the output folder (default ``results/FOLDER``, the spec's ``folder``, else ``results/NAME``)::
 
   cells/<cell id>.json         the cell's parameters and summary (written last: its presence = done)
-  cells/<cell id>/episodes.csv per-episode records; cells/<cell id>/summary.json the full summary
+  cells/<cell id>/summary.json the full summary; cells/<cell id>/episodes.csv the per-episode records (not
+                               committed: the same command regenerates them)
   NAME.png, NAME.md            the figure and the table, rebuilt from cells/*.json by --render-only
 """
 
@@ -46,13 +52,25 @@ from pathlib import Path
 from safemanip.util.files import OutputLock, atomic_write_text, check_output_dir
 from safemanip.util.procs import Interrupted, stop_on_signals
 
-POLICY_NAME = re.compile(r"(?P<algorithm>[a-z0-9]+)-k(?P<k>\d+)-(?P<constraints>conservative|all)$")
+POLICY_NAME = re.compile(r"(?P<algorithm>[a-z0-9]+)-k(?P<k>\d+)-(?P<constraints>conservative|all)"
+                         r"(?:-(?P<variant>selaware))?(?:-s(?P<train_seed>\d+))?$")
+"""ALGORITHM-kK-CONSTRAINTS[-selaware][-sSEED]: a cell knows its policy's k, how it was trained (``selaware``: with the
+object selector in the loop, ``TrainConfig.scene_objects``) and its training seed from the file name alone."""
+PLANNER_AVOID = ("all", "fragile")
+"""The planner bounds a sweep can add (``bounds``): the privileged planner keeping clear of every object, or of the
+fragile ones only (``control.planner.GridPlanner``)."""
+SCENE_KEYS = {"layout": str, "gate_share": float, "exit_share": float}
+"""What a sweep's ``scenes`` may set: the layout and the shares of gate and exit scenes (``scene.config.SceneConfig``)."""
 FIGURES = ("fig4", "fig5", "fig6", "table")
-DEFAULT_ROOT = Path("results/sweeps")
-SHIPPED_RECIPE = ("--embodiment panda --object-size --minutes 20 --gamma-start 0.9 --gamma 0.98 "
-                  "--learning-rate-final 1e-4 --precision auto --seed 0")
-"""Flags every shipped Panda policy was trained with (each file's metadata holds its full config). The shipped
-file is whichever of the run's final policy and its ``best.safetensors`` scored higher on seed block 8."""
+DEFAULT_ROOT = Path("results")
+RECIPE = ("--object-size --action-curve 2 --gamma 0.98 --gamma-start 0.9 --learning-rate-final 1e-4 --precision bf16 "
+          "--total-env-steps 400000 --minutes 240")
+"""Flags every benchmark policy was trained with (``results/training/train.sh``; each file's metadata holds its full
+config): the same budget of 400k environment steps (100k updates) for every method. The shipped file is whichever
+of the run's final policy and its ``best.safetensors`` scored higher on seed block 30."""
+TRAINING_LAYOUT = {"conservative": "exit", "all": "gate"}
+"""The layout each kind of benchmark policy trains on: conservative ones meet open and exit scenes, 'all' ones open
+and gate scenes."""
 
 
 class SweepError(ValueError):
@@ -75,18 +93,33 @@ class Cell:
     vlm: str | None = None
     """Identity of the semantic backend for cells that query it (its example set and rule version), so a
     new classifier version makes those cells stale; None for cells that do not use it."""
+    variant: str = ""
+    """'selaware' for a policy trained with the object selector in the loop, '' for one trained the paper's way."""
+    train_seed: int | None = None
+    """The policy's training seed (from its name); the table and figure pool the seeds of one method."""
+    scenes: str | None = None
+    """The sweep's scene settings (``scenes``) in short, e.g. 'layout=exit,exit_share=1.0'; None: the policy's own."""
 
     @property
     def id(self) -> str:
         sem = "any" if not self.semantics else re.sub(r"[^a-z0-9]+", "-", self.semantics.lower()).strip("-")
+        scenes = "" if not self.scenes else "__" + re.sub(r"[^a-z0-9.]+", "-", self.scenes.lower()).strip("-")
         return (f"{Path(self.policy).stem}__N{self.n_objects}__{sem}__{self.selector}__{self.constraints}"
-                f"__{self.judge}")
+                f"__{self.judge}{scenes}")
+
+    @property
+    def group(self) -> str:
+        """The method this cell measures, whatever its training seed: the policy's name without ``-sSEED``."""
+        return re.sub(r"-s\d+$", "", Path(self.policy).stem)
 
     def train_command(self) -> str:
-        """The command that trains this cell's policy the way the shipped ones were (``SHIPPED_RECIPE``)."""
-        run = f"runs/{Path(self.policy).stem}"
+        """The command that trains this cell's policy as the benchmark's were (``RECIPE``), then brings it in."""
+        name = Path(self.policy).stem
+        selaware = (f" --scene-objects 6 --scene-objects-min {self.k} --selector dynamic-knn"
+                    if self.variant == "selaware" else "")
         return (f"safemanip train --algorithm {self.algorithm} --k {self.k} --constraints {self.policy_constraints} "
-                f"{SHIPPED_RECIPE} --out {run} && cp {run}/policy.safetensors {self.policy}")
+                f"--layout {TRAINING_LAYOUT[self.policy_constraints]}{selaware} {RECIPE} --seed {self.train_seed or 0} "
+                f"--out runs/bench/{name} && python results/training/promote.py runs/bench")
 
 
 # ------------------------------------------------------------------------------------------ configs
@@ -96,12 +129,12 @@ def available() -> list[str]:
 
 
 SPEC_KEYS = ("name", "title", "description", "figure", "episodes", "seed", "judge", "policies", "n_objects", "semantics",
-             "selectors", "constraints", "pairs", "k_equals_n_selector", "table")
+             "selectors", "constraints", "pairs", "k_equals_n_selector", "table", "scenes", "bounds", "folder")
 """Every key a sweep spec may hold; any other (a misspelt "seeds", a "layout" the grid does not take) is refused."""
 REQUIRED_KEYS = ("name", "figure", "episodes", "policies", "n_objects", "judge")
 POLICY_ENTRY_KEYS = ("path", "n_objects", "semantics")
 CELL_FIELDS = ("policy", "algorithm", "k", "policy_constraints", "n_objects", "semantics", "selector", "constraints",
-               "judge", "episodes", "seed", "vlm")
+               "judge", "episodes", "seed", "vlm", "variant", "train_seed", "scenes")
 """What a table's rows and columns may name (the fields of ``Cell``)."""
 PLAIN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
 MAX_SPEC_BYTES = 1_000_000
@@ -182,6 +215,10 @@ def _validate(cfg, where: str) -> None:
     need(isinstance(name, str) and PLAIN_NAME.fullmatch(name) is not None and ".." not in name,
          f"name must be a plain file name (letters, digits, '.', '_', '-'; no folders), got {_short(name)}: it names "
          f"the table and figure written inside the output folder")
+    if "folder" in cfg:
+        folder = cfg["folder"]
+        need(isinstance(folder, str) and all(PLAIN_NAME.fullmatch(part) and part != ".." for part in folder.split("/")),
+             f"folder must be a relative path of plain names under results/ (e.g. 'exit/fig4'), got {_short(folder)}")
     for key in ("title", "description"):
         if key in cfg:
             need(isinstance(cfg[key], str) and len(cfg[key]) <= 2000, f"{key} must be a string, got {_short(cfg[key])}")
@@ -218,7 +255,7 @@ def _validate(cfg, where: str) -> None:
                 continue
             if not POLICY_NAME.fullmatch(Path(p).stem):
                 problems.append(f"policy {p[:200]!r} is not named ALGORITHM-kK-CONSTRAINTS.safetensors "
-                                f"(e.g. policies/rarl-k2-conservative.safetensors)")
+                                f"(e.g. policies/rarl-k2-conservative-s0.safetensors)")
     if "selectors" in cfg:
         str_list("selectors", cfg["selectors"], OBJECT_SELECTORS)
     if "constraints" in cfg:
@@ -239,6 +276,13 @@ def _validate(cfg, where: str) -> None:
                 parse_semantics_checked(sem)
             except ValueError as err:
                 problems.append(str(err))
+    if "scenes" in cfg:
+        scenes = cfg["scenes"]
+        if need(isinstance(scenes, dict) and set(scenes) <= set(SCENE_KEYS),
+                f"scenes must be an object of {', '.join(SCENE_KEYS)}, got {_short(scenes)}"):
+            problems += _scene_problems(scenes)
+    if "bounds" in cfg:
+        str_list("bounds", cfg["bounds"], PLANNER_AVOID)
     extra = cfg.get("k_equals_n_selector")
     if extra is not None:
         need(isinstance(extra, str) and extra in OBJECT_SELECTORS, f"unknown k_equals_n_selector {_short(extra)}")
@@ -259,6 +303,31 @@ def _validate(cfg, where: str) -> None:
                 need(not both, f"table rows and columns both name {', '.join(both)}")
     if problems:
         raise SweepError(f"sweep {where}: " + "; ".join(problems))
+
+
+def _scene_problems(scenes: dict) -> list[str]:
+    from safemanip.scene.config import SceneConfig
+
+    problems = []
+    if "layout" in scenes and not isinstance(scenes["layout"], str):
+        problems.append(f"scenes layout must be a layout's name, got {_short(scenes['layout'])}")
+    for key in ("gate_share", "exit_share"):
+        value = scenes.get(key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
+            problems.append(f"scenes {key} must be a number from 0 to 1, got {_short(value)}")
+    if not problems:
+        try:
+            SceneConfig(**scenes)
+        except ValueError as err:
+            problems.append(f"scenes: {err}")
+    return problems
+
+
+def scenes_label(scenes: dict | None) -> str | None:
+    """A sweep's ``scenes`` in short, for cell ids and tables (None: each policy's own scenes)."""
+    if not scenes:
+        return None
+    return ",".join(f"{k}={float(v) if k != 'layout' else v}" for k, v in sorted(scenes.items()))
 
 
 def vlm_identity(vlm: dict | None) -> str:
@@ -283,6 +352,7 @@ def cells_of(cfg: dict, episodes: int | None = None, vlm: dict | None = None) ->
     from safemanip.scene.config import parse_semantics
 
     episodes = int(episodes or cfg["episodes"])
+    scenes = scenes_label(cfg.get("scenes"))
     pairs = cfg.get("pairs") or [(s, c) for s in cfg["selectors"] for c in cfg.get("constraints", ["conservative"])]
     out: dict[str, Cell] = {}
     for entry in cfg["policies"]:
@@ -302,8 +372,21 @@ def cells_of(cfg: dict, episodes: int | None = None, vlm: dict | None = None) ->
                     uses_vlm = selector in USES_VLM or constraints in USES_VLM
                     cell = Cell(policy, m["algorithm"], k, m["constraints"], int(n), sem, selector, constraints,
                                 cfg["judge"], episodes, int(cfg.get("seed", 0)),
-                                vlm_identity(vlm) if uses_vlm else None)
+                                vlm_identity(vlm) if uses_vlm else None, m["variant"] or "",
+                                None if m["train_seed"] is None else int(m["train_seed"]), scenes)
                     out.setdefault(cell.id, cell)
+    sizes = sorted({int(n) for e in cfg["policies"] for n in (e.get("n_objects", cfg["n_objects"]) if isinstance(e, dict)
+                                                               else cfg["n_objects"])})
+    all_semantics = list(dict.fromkeys(cfg.get("semantics", [None]) + [s for e in cfg["policies"] if isinstance(e, dict)
+                                                                       for s in e.get("semantics", [])]))
+    for avoid in cfg.get("bounds", []):  # the planner on the very same scenes (same seeds), once per scene setting
+        for n in sizes:
+            for sem in all_semantics:
+                if sem is not None and len(parse_semantics(sem)) != n:
+                    continue
+                cell = Cell(f"planner-{avoid}", "planner", n, avoid, n, sem, "full", "ground-truth", cfg["judge"],
+                            episodes, int(cfg.get("seed", 0)), scenes=scenes)
+                out.setdefault(cell.id, cell)
     return list(out.values())
 
 
@@ -375,7 +458,7 @@ def run_sweep(name: str, *, episodes: int | None = None, out: str | None = None,
     from safemanip.evaluation.harness import VLM_FIELDS, vlm_option_problems
 
     cfg = load_config(name)
-    root = Path(out) if out else DEFAULT_ROOT / cfg["name"]
+    root = Path(out) if out else DEFAULT_ROOT / cfg.get("folder", cfg["name"])
     vlm = {k: v for k, v in (vlm or {}).items() if v}
     unknown = sorted(set(vlm) - set(VLM_FIELDS))
     if unknown:
@@ -435,7 +518,7 @@ def _ray_session(backend: str, address: str | None, workers: int):
 
 
 def _run_cells(cfg, cells, root, status, workers, backend, address, progress, log, vlm: dict) -> None:
-    from safemanip.evaluation.harness import EvalRequest, evaluate
+    from safemanip.evaluation.harness import EvalRequest
     from safemanip.rl.checkpoint import resolve_policy
 
     cells_dir = root / "cells"
@@ -447,8 +530,17 @@ def _run_cells(cfg, cells, root, status, workers, backend, address, progress, lo
             status["done"].append(cell.id)
             log(f"{tag}: done already")
             continue
-        # a relative path such as policies/rarl-k2-conservative.safetensors falls back to the shipped policy
+        # a relative path such as policies/rarl-k2-conservative-s0.safetensors falls back to the shipped policy
         # of that name, so a shipped sweep runs from any working folder
+        scenes = dict(cfg.get("scenes") or {})
+        if cell.algorithm == "planner":
+            req = EvalRequest(policy=None, planner=cell.policy_constraints, n_objects=cell.n_objects,
+                              semantics=cell.semantics, judge=cell.judge, episodes=cell.episodes, seed=cell.seed,
+                              workers=workers, backend=backend, address=address, out=str(cells_dir / cell.id),
+                              progress=progress, **scenes)
+            if not _evaluate_cell(req, cell, result_path, status, tag, log):
+                return
+            continue
         policy = Path(cell.policy) if Path(cell.policy).is_absolute() else resolve_policy(cell.policy)
         if not policy.exists():
             status["skipped"].append({"cell": cell.id, "policy": cell.policy, "train": cell.train_command()})
@@ -458,29 +550,43 @@ def _run_cells(cfg, cells, root, status, workers, backend, address, progress, lo
                           selector=cell.selector, constraints=cell.constraints, judge=cell.judge,
                           episodes=cell.episodes, seed=cell.seed, workers=workers, backend=backend,
                           address=address, out=str(cells_dir / cell.id), progress=progress,
-                          **(vlm if cell.vlm else {}))
+                          **scenes, **(vlm if cell.vlm else {}))
         try:
             _check_policy_name(cell)
-            report = evaluate(req)
-        except ValueError as err:  # e.g. the file's k disagrees with its name: report, go on with the rest
+        except ValueError as err:  # the file's k disagrees with its name: report, go on with the rest
             status["failed"].append({"cell": cell.id, "error": str(err)})
             log(f"{tag}: failed: {err}")
             continue
-        if report["summary"].get("interrupted"):  # a partial cell is not a result: redo it next time
-            status["interrupted"] = report["summary"]["interrupted"]["signum"]
+        if not _evaluate_cell(req, cell, result_path, status, tag, log):
             return
-        if report["summary"].get("failed"):  # a worker died: the cell is incomplete, redone next time
-            from safemanip.evaluation.harness import failure_line
 
-            error = failure_line(report["summary"], req.out)
-            status["failed"].append({"cell": cell.id, "error": error})
-            log(f"{tag}: failed: {error}")
-            continue
-        summary = {k: v for k, v in report["summary"].items() if k not in ("request", "policy_meta")}
-        atomic_write_text(result_path, json.dumps({"cell": asdict(cell), "summary": summary}, indent=1))
-        status["ran"].append(cell.id)
-        s = summary["success"]
-        log(f"{tag}: success {100 * s['rate']:.1f}% [{100 * s['ci95'][0]:.1f}, {100 * s['ci95'][1]:.1f}]")
+
+def _evaluate_cell(req, cell: Cell, result_path: Path, status: dict, tag: str, log) -> bool:
+    """Run one cell and store its result; False when a signal stopped it (the sweep stops too)."""
+    from safemanip.evaluation.harness import evaluate
+
+    try:
+        report = evaluate(req)
+    except ValueError as err:  # an evaluation that cannot run: report, go on with the rest
+        status["failed"].append({"cell": cell.id, "error": str(err)})
+        log(f"{tag}: failed: {err}")
+        return True
+    if report["summary"].get("interrupted"):  # a partial cell is not a result: redo it next time
+        status["interrupted"] = report["summary"]["interrupted"]["signum"]
+        return False
+    if report["summary"].get("failed"):  # a worker died: the cell is incomplete, redone next time
+        from safemanip.evaluation.harness import failure_line
+
+        error = failure_line(report["summary"], req.out)
+        status["failed"].append({"cell": cell.id, "error": error})
+        log(f"{tag}: failed: {error}")
+        return True
+    summary = {k: v for k, v in report["summary"].items() if k not in ("request", "policy_meta")}
+    atomic_write_text(result_path, json.dumps({"cell": asdict(cell), "summary": summary}, indent=1))
+    status["ran"].append(cell.id)
+    s = summary["success"]
+    log(f"{tag}: success {100 * s['rate']:.1f}% [{100 * s['ci95'][0]:.1f}, {100 * s['ci95'][1]:.1f}]")
+    return True
 
 
 def _check_policy_name(cell: Cell) -> None:
@@ -506,16 +612,85 @@ def load_results(root: Path) -> list[dict]:
 
 
 # ------------------------------------------------------------------------------------------ rendering
+def _pooled_entry(entries: list[dict], counts: list[int], totals: list[int]) -> dict:
+    """Rate entries of one method's training seeds as one: the mean rate, the Wilson interval of all their episodes
+    together, and the lowest and highest seed (``spread``)."""
+    from safemanip.evaluation.stats import wilson_interval
+
+    rates = [e["rate"] for e in entries]
+    return {"count": int(sum(counts)), "rate": float(sum(rates) / len(rates)),
+            "ci95": list(wilson_interval(int(sum(counts)), int(sum(totals)))), "spread": [min(rates), max(rates)],
+            "seeds": len(entries)}
+
+
+def pool_seeds(results: list[dict]) -> list[dict]:
+    """The results with the cells of one method (all fields equal but the policy's training seed) pooled into one,
+    whose rates are the mean over the seeds, with the Wilson interval of all their episodes and each rate's
+    ``spread`` (lowest, highest seed). Cells of a policy without a seed in its name stay as they are."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in results:
+        c = r["cell"]
+        if c.get("train_seed") is None:
+            groups[("single", c["policy"], tuple(sorted(map(str, c.items()))))] = [r]
+            continue
+        rest = tuple((k, str(v)) for k, v in sorted(c.items()) if k not in ("policy", "train_seed"))
+        groups.setdefault((re.sub(r"-s\d+$", "", Path(c["policy"]).stem),) + rest, []).append(r)
+    out = []
+    for members in groups.values():
+        first = members[0]
+        if first["cell"].get("train_seed") is None:
+            out.append(first)
+            continue
+        cell = {**first["cell"], "policy": re.sub(r"-s\d+$", "", Path(first["cell"]["policy"]).stem),
+                "train_seed": None}
+        sums = [m["summary"] for m in members]
+        totals = [s["episodes"] for s in sums]
+
+        def pooled(get) -> dict:
+            entries = [get(s) for s in sums]
+            return _pooled_entry(entries, [e["count"] for e in entries], totals)
+
+        summary = {"episodes": int(sum(totals)), "success": pooled(lambda s: s["success"]),
+                   "safety_violation": pooled(lambda s: s["safety_violation"]),
+                   "categories": {c: pooled(lambda s, c=c: s["categories"][c]) for c in sums[0]["categories"]},
+                   "mean_length": float(sum(s["mean_length"] for s in sums) / len(sums)),
+                   "seeds": sorted(m["cell"]["train_seed"] for m in members)}
+        kinds = sorted({k for s in sums for k in s.get("by_scene_kind", {})})
+        if kinds and all(set(s.get("by_scene_kind", {})) == set(kinds) for s in sums):
+            summary["by_scene_kind"] = {
+                k: {"episodes": int(sum(s["by_scene_kind"][k]["episodes"] for s in sums)),
+                    **{m: _pooled_entry([s["by_scene_kind"][k][m] for s in sums],
+                                        [s["by_scene_kind"][k][m]["count"] for s in sums],
+                                        [s["by_scene_kind"][k]["episodes"] for s in sums]) for m in ("success", "top_box")}}
+                for k in kinds}
+        out.append({"cell": cell, "summary": summary})
+    return out
+
+
 def _pct(summary: dict, key: str) -> float:
     if key in ("success", "safety_violation"):
         return 100 * summary[key]["rate"]
     return 100 * summary["categories"][key]["rate"]
 
 
-def _fmt(summary: dict, key: str = "success") -> str:
-    entry = summary[key] if key in ("success", "safety_violation") else summary["categories"][key]
+def _fmt_entry(entry: dict) -> str:
     lo, hi = entry["ci95"]
-    return f"{100 * entry['rate']:.1f} [{100 * lo:.1f}, {100 * hi:.1f}]"
+    text = f"{100 * entry['rate']:.1f} [{100 * lo:.1f}, {100 * hi:.1f}]"
+    if entry.get("seeds", 1) > 1:  # pooled over training seeds: their spread too
+        text += f" ({100 * entry['spread'][0]:.0f}-{100 * entry['spread'][1]:.0f})"
+    return text
+
+
+def _fmt(summary: dict, key: str = "success") -> str:
+    return _fmt_entry(summary[key] if key in ("success", "safety_violation") else summary["categories"][key])
+
+
+def _kinds(summary: dict) -> str:
+    """Success per scene kind, where a cell mixes kinds ('open 99.0 / exit 71.5')."""
+    kinds = summary.get("by_scene_kind") or {}
+    if len(kinds) < 2:
+        return ""
+    return " / ".join(f"{k} {100 * v['success']['rate']:.1f}" for k, v in kinds.items())
 
 
 def _pairs(cfg: dict) -> list:
@@ -545,8 +720,11 @@ def markdown_table(cfg: dict, results: list[dict]) -> str:
         lines += [cfg["description"], ""]
     if not results:
         return "\n".join(lines + ["No results yet: run `safemanip sweep " + cfg["name"] + "`."]) + "\n"
+    every = results
+    bounds = [r for r in results if r["cell"]["algorithm"] == "planner"]
+    results = pool_seeds([r for r in results if r["cell"]["algorithm"] != "planner"])
     pivot = cfg.get("table")
-    if pivot:
+    if pivot and results:
         rows, cols = list(pivot["rows"]), list(pivot["columns"])
         order = _orderer(cfg)
 
@@ -577,41 +755,67 @@ def markdown_table(cfg: dict, results: list[dict]) -> str:
         row_keys = sorted({rk for rk, _ in cells}, key=lambda t: order(rows, t))
         col_keys = sorted({ck for _, ck in cells}, key=lambda t: order(cols, t))
         lines.append("Success rate (%), 95% Wilson interval in brackets" +
-                     ("; (k = N): the full-state policy, the same cell in every selector column:" if full else ":"))
+                     ("; over several training seeds: their mean, the interval of all their episodes pooled, and the "
+                      "lowest and highest seed in parentheses" if any("seeds" in s for _, s, _ in expanded) else "") +
+                     ("; (k = N): the full-state policy, the same cell in every selector column" if full else "") +
+                     ("; the planner rows: the privileged planner on the same scenes (an upper bound)" if bounds else "")
+                     + ":")
         lines.append("")
         lines.append("| " + " / ".join(rows) + " | " + " | ".join(" ".join(map(str, c)) for c in col_keys) + " |")
         lines.append("|" + "---|" * (len(col_keys) + 1))
         for rk in row_keys:
             vals = [(_fmt(cells[(rk, ck)][0]) + cells[(rk, ck)][1]) if (rk, ck) in cells else "n/a" for ck in col_keys]
             lines.append("| " + " / ".join(map(str, rk)) + " | " + " | ".join(vals) + " |")
+        shared = [i for i, name in enumerate(cols) if name in ("n_objects", "semantics", "scenes", "judge")]
+        for avoid in PLANNER_AVOID:  # a bound matches a column by the scenes alone (N, semantics, settings)
+            mine = [r for r in bounds if r["cell"]["policy_constraints"] == avoid]
+            if not mine:
+                continue
+            vals = []
+            for ck in col_keys:
+                match = [r for r in mine if all(str(value(r["cell"], cols[i])) == str(ck[i]) for i in shared)]
+                vals.append(_fmt(match[0]["summary"]) if match else "n/a")
+            lines.append(f"| planner, avoiding {'every object' if avoid == 'all' else 'the fragile objects'} (bound) | "
+                         + " | ".join(vals) + " |")
         lines.append("")
-    lines.append("All cells (rates in %, 95% Wilson interval for success):")
+    lines.append("All cells, each training seed on its own (rates in %, 95% Wilson interval for success):")
     lines.append("")
     head = ["policy", "k", "N", "semantics", "selector", "constraints", "episodes", "success", "violation",
-            "top box / OOB", "coll. unselected", "coll. selected", "soft", "timeout", "unstable", "mean length"]
+            "top box / OOB", "coll. unselected", "coll. selected", "soft", "timeout", "unstable", "mean length",
+            "success by scene kind"]
     lines.append("| " + " | ".join(head) + " |")
     lines.append("|" + "---|" * len(head))
     order = lambda r: (r["cell"]["k"], r["cell"]["n_objects"], str(r["cell"]["semantics"]), r["cell"]["selector"],  # noqa: E731
                        r["cell"]["constraints"], r["cell"]["policy"])
-    for r in sorted(results, key=order):
+    for r in sorted(every, key=order):
         c, s = r["cell"], r["summary"]
         lines.append("| " + " | ".join([
             Path(c["policy"]).stem, str(c["k"]), str(c["n_objects"]), c["semantics"] or "any", c["selector"],
             c["constraints"], str(s["episodes"]), _fmt(s), f"{_pct(s, 'safety_violation'):.1f}",
             f"{_pct(s, 'top_box') + _pct(s, 'out_of_workspace'):.1f}", f"{_pct(s, 'collision_unselected'):.1f}",
             f"{_pct(s, 'collision_selected'):.1f}", f"{_pct(s, 'soft_contact'):.1f}", f"{_pct(s, 'timeout'):.1f}",
-            f"{_pct(s, 'unstable'):.1f}", f"{s['mean_length']:.1f}"]) + " |")
+            f"{_pct(s, 'unstable'):.1f}", f"{s['mean_length']:.1f}", _kinds(s)]) + " |")
     return "\n".join(lines) + "\n"
 
 
 def _error_bars(entries: list[dict]) -> list[list[float]]:
-    """matplotlib's (below, above) error bars in % from summary entries' rate and 95 % interval; clamped at 0, as
-    an interval's end may round to the other side of a rate of 0 or 1."""
-    return [[max(0.0, 100 * (e["rate"] - e["ci95"][0])) for e in entries],
-            [max(0.0, 100 * (e["ci95"][1] - e["rate"])) for e in entries]]
+    """matplotlib's (below, above) error bars in %: an entry pooled over training seeds spans its lowest and highest
+    seed, a single one its 95 % interval; clamped at 0, as an interval's end may round to the other side of 0 or 1."""
+    span = [e["spread"] if e.get("seeds", 1) > 1 else e["ci95"] for e in entries]
+    return [[max(0.0, 100 * (e["rate"] - lo)) for e, (lo, _) in zip(entries, span)],
+            [max(0.0, 100 * (hi - e["rate"])) for e, (_, hi) in zip(entries, span)]]
 
 
-def _plot_fig5(cfg: dict, results: list[dict], path: Path) -> None:
+def _plot_bound(ax, bounds: list[dict], avoid: str = "all") -> None:
+    """The planner's success on the same scenes, against N: the bound a figure's policies are measured against."""
+    pts = sorted((r["cell"]["n_objects"], 100 * r["summary"]["success"]["rate"]) for r in bounds
+                 if r["cell"]["policy_constraints"] == avoid)
+    if pts:
+        ax.plot(*zip(*pts), color="black", linestyle="--", marker="x", linewidth=1,
+                label=f"planner bound (avoiding {'everything' if avoid == 'all' else 'fragile objects'})")
+
+
+def _plot_fig5(cfg: dict, results: list[dict], path: Path, bounds: list[dict] = ()) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -642,6 +846,7 @@ def _plot_fig5(cfg: dict, results: list[dict], path: Path) -> None:
         fx = [(r["cell"]["n_objects"], 100 * r["summary"]["success"]["rate"]) for r in full]
         if fx:
             ax.scatter(*zip(*fx), marker="*", s=160, color="black", zorder=5, label="k = N (full state)")
+        _plot_bound(ax, list(bounds))
         ax.set_title(sel)
         ax.set_xlabel("objects in the scene N")
         ax.set_xticks(sorted({r["cell"]["n_objects"] for r in results}))
@@ -654,7 +859,7 @@ def _plot_fig5(cfg: dict, results: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
-def _plot_fig4(cfg: dict, results: list[dict], path: Path) -> None:
+def _plot_fig4(cfg: dict, results: list[dict], path: Path, bounds: list[dict] = ()) -> None:
     """Paper Fig. 4: per algorithm, success (solid) and top-box violations (dotted) against N, with 95 % intervals."""
     import matplotlib
     matplotlib.use("Agg")
@@ -673,6 +878,7 @@ def _plot_fig4(cfg: dict, results: list[dict], path: Path) -> None:
             ys = [100 * e["rate"] for e in entries]
             ax.errorbar(xs, ys, yerr=_error_bars(entries), linestyle=style, marker="o", capsize=3, color=colours[algorithm],
                         label=f"{labels.get(algorithm, algorithm)}: {what}")
+    _plot_bound(ax, list(bounds))
     ax.set_xlabel("objects in the scene N (policy k = N)")
     ax.set_ylabel("episodes (%)")
     ax.set_ylim(-2, 102)
@@ -691,7 +897,7 @@ FIG6_STACK = (("success", ("success",), "tab:green"), ("top box / OOB", ("top_bo
               ("other (soft, timeout, unstable)", ("soft_contact", "timeout", "unstable"), "tab:gray"))
 
 
-def _plot_fig6(cfg: dict, results: list[dict], path: Path) -> None:
+def _plot_fig6(cfg: dict, results: list[dict], path: Path, bounds: list[dict] = ()) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -719,15 +925,18 @@ def _plot_fig6(cfg: dict, results: list[dict], path: Path) -> None:
 
 
 def render(cfg: dict, results: list[dict], root: Path) -> tuple[str | None, str]:
-    """Write NAME.md (always) and NAME.png (fig4/fig5/fig6, when there are results) from stored results only."""
+    """Write NAME.md (always) and NAME.png (fig4/fig5/fig6, when there are results) from stored results only. The
+    figures show each method pooled over its training seeds (``pool_seeds``) and the planner's bound."""
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     table = root / f"{cfg['name']}.md"
     atomic_write_text(table, markdown_table(cfg, results))
     figure = None
-    if results and cfg["figure"] in ("fig4", "fig5", "fig6"):
+    policies = pool_seeds([r for r in results if r["cell"]["algorithm"] != "planner"])
+    bounds = [r for r in results if r["cell"]["algorithm"] == "planner"]
+    if policies and cfg["figure"] in ("fig4", "fig5", "fig6"):
         figure = root / f"{cfg['name']}.png"
-        {"fig4": _plot_fig4, "fig5": _plot_fig5, "fig6": _plot_fig6}[cfg["figure"]](cfg, results, figure)
+        {"fig4": _plot_fig4, "fig5": _plot_fig5, "fig6": _plot_fig6}[cfg["figure"]](cfg, policies, figure, bounds)
     return (str(figure) if figure else None), str(table)
 
 

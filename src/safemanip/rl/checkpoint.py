@@ -170,7 +170,7 @@ SHIPPED_POLICIES = Path(__file__).resolve().parent.parent / "policies"
 
 
 def resolve_policy(name_or_path: str | Path) -> Path:
-    """A path as given if it exists, else a shipped policy by name (``rarl-k2-conservative``) or by
+    """A path as given if it exists, else a shipped policy by name (``rarl-k2-conservative-s0``) or by
     ``policies/FILE`` (the form the shipped sweeps use, so they run from any working folder).
 
     Only those two forms fall back: a path into any other folder that does not exist stays missing (and is

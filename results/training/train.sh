@@ -1,0 +1,44 @@
+#!/usr/bin/env bash
+# Every policy of the benchmark (docs/results.md), trained one after another on the two cores, resumable.
+#
+#   bash results/training/train.sh [RUNS_DIR]      # default: runs/bench (git-ignored)
+#
+# Each run stops at 400k environment steps (100k learner updates: the data rate is held at 4 steps per update),
+# the same budget for every method; --minutes only guards against a stalled run. A finished run is skipped, an
+# interrupted one resumed from its newest checkpoint. Seed 0 of every run comes first, then seeds 1 and 2, so a
+# partial queue still covers every figure with one seed. The finished policies go to src/safemanip/policies/
+# (results/training/promote.py), their training records to results/training/NAME/.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+RUNS=${1:-runs/bench}
+mkdir -p "$RUNS"
+COMMON=(--object-size --action-curve 2 --gamma 0.98 --gamma-start 0.9 --learning-rate-final 1e-4
+        --precision bf16 --total-env-steps 400000 --minutes 240 --no-progress)
+
+run() {  # run NAME FLAGS...
+  local name=$1; shift
+  local out="$RUNS/$name"
+  if [ -f "$out/summary.json" ] && python3 -c "import json, sys; s = json.load(open(sys.argv[1]))
+sys.exit(0 if s['interrupted'] is None and s['env_steps'] >= 400000 else 1)" "$out/summary.json"; then return; fi
+  if [ -f "$out/checkpoint/meta.json" ]; then
+    echo "$(date -u +%H:%M) resume $name"; safemanip train --resume "$out" --no-progress >> "$out.log" 2>&1
+  else
+    echo "$(date -u +%H:%M) train $name"; safemanip train "$@" "${COMMON[@]}" --out "$out" > "$out.log" 2>&1
+  fi
+}
+
+for seed in 0 1 2; do
+  run "rarl-k2-conservative-s$seed" --algorithm rarl --k 2 --constraints conservative --layout exit --seed "$seed"
+  run "rarl-k2-all-s$seed" --algorithm rarl --k 2 --constraints all --layout gate --seed "$seed"
+  run "rarl-k3-all-s$seed" --algorithm rarl --k 3 --constraints all --layout gate --seed "$seed"
+  for k in 1 3 4 5 6; do
+    run "rarl-k$k-conservative-s$seed" --algorithm rarl --k "$k" --constraints conservative --layout exit --seed "$seed"
+  done
+  for k in 1 2 3 4 5 6; do
+    run "vanilla-k$k-conservative-s$seed" --algorithm vanilla --k "$k" --constraints conservative --layout exit --seed "$seed"
+  done
+  for k in 2 3 4 5; do
+    run "rarl-k$k-conservative-selaware-s$seed" --algorithm rarl --k "$k" --constraints conservative --layout exit \
+        --scene-objects 6 --scene-objects-min "$k" --selector dynamic-knn --seed "$seed"
+  done
+done
