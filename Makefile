@@ -13,7 +13,7 @@ endif
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.safemanip-installed
 
-.PHONY: install system-deps demo test bench clean-venv
+.PHONY: install system-deps demo test test-fast bench clean-venv
 
 # Mesa's EGL for headless offscreen rendering (MUJOCO_GL=egl). Skipped when already present or not root.
 system-deps:
@@ -38,6 +38,10 @@ demo: install
 
 test: install
 	$(BIN)/python -m pytest -q
+
+# the suite without the tests marked slow (longer physics, learning and process checks): for local work
+test-fast: install
+	$(BIN)/python -m pytest -q -m "not slow"
 
 bench: install
 	$(BIN)/python benchmarks/env_throughput.py

@@ -8,7 +8,6 @@ margin 0.19 picked by cross-validation over the examples) gets 30 right; v2 (cla
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 import pytest
@@ -143,9 +142,7 @@ def test_constraint_selector_end_to_end(backend):
 
 def test_commands_with_the_real_model(backend):
     assert classify_constraints(backend, ["red mug", "toy sheep"]) == "red mug\tno_contact\ntoy sheep\tany_contact"
-    start = time.perf_counter()
-    text, result = constraint_matrix(backend, trials=50, seed=0)
-    assert time.perf_counter() - start < 2.0  # names are embedded already; the rest is bookkeeping
+    text, result = constraint_matrix(backend, trials=50, seed=0)  # its speed: benchmarks/selector_latency.py
     assert "deterministic" in text
     assert result["object_accuracy"] >= 80.0  # measured 85.7 (30/35)
     assert result["table3"]["no_contact"]["no_contact"] >= 95.0  # measured 100.0 at 200 trials

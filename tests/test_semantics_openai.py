@@ -216,13 +216,11 @@ def test_hanging_server_hits_timeout_and_falls_back():
         selector = DynamicVLMSelector(backend)
         v = view()
         selector.reset(v, 1)
-        start = time.perf_counter()
         ids = selector.select(v, 1)
-        elapsed = time.perf_counter() - start
         release.set()
+    # had either attempt waited for the server, it would have got a valid answer (after 3 s) and not fallen back
     assert ids == dynamic_knn(v, 1)
     assert selector.stats.fallbacks == 1 and backend.calls == 2
-    assert 0.55 < elapsed < 2.5  # two attempts of ~0.3 s each, not the server's 3 s
 
 
 def test_http_401_is_not_retried_and_says_what_to_fix():

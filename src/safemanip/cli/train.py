@@ -46,7 +46,7 @@ FLAGS = {
     "--eval-episodes": ("eval_episodes", int_in(1, 100_000), "episodes per evaluation"),
     "--checkpoint-every-s": ("checkpoint_every_s", float_in(0, 86_400, lo_open=True), "seconds between checkpoints"),
     "--max-episode-steps": ("max_episode_steps", int_in(1, 100_000), "episode length in control steps"),
-    # learner speed, network, selection-aware training and rollout backend (issue 10)
+    # learner speed, network, selection-aware training and rollout backend
     "--device": ("device", None, "learner device: auto (CUDA if PyTorch sees a GPU), cpu or cuda (default auto)"),
     "--precision": ("precision", None, "forward passes in bf16 autocast or fp32; auto: bf16 where it is native "
                                        "and measured faster at start-up (default auto)"),

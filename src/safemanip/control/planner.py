@@ -2,9 +2,9 @@
 
 It sees the whole scene (every object's shape and pose, not the k slots a policy sees), so it is a
 reference, not a method of the paper: it says what the task allows within the arm's limits, and its
-episodes can seed a learner's replay buffer (``TrainConfig.demo_fraction``).
+episodes measure each benchmark cell's bound (``safemanip eval --planner``).
 
-Free space is the held box centre's, on a 5 mm grid over the table: a grid point is free if the box,
+Free space is the held box centre's, on a 1 cm grid over the table: a grid point is free if the box,
 translating at its fixed orientation (the controller holds the hand's), keeps every object part that
 reaches below the box's top more than d4 + ``clearance`` away, and stays clear of the top box. From the
 goal region a geodesic distance field is spread over the free points (8-connected). Each control step

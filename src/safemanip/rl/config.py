@@ -31,8 +31,8 @@ class TrainConfig:
     """Share of the clutter placed near the path to the goal (None: the layout's own, 0.5 for 'route')."""
     clear_route: bool = True
     """Scenes keep a route to the goal clear for the held box and hand, the near-path objects beside it
-    (``scene.placement.sample_route``). False: the straight-corridor layout of results before 2026-12-02, in
-    which the Panda cannot solve most scenes with N >= 3. Recorded in the policy's metadata."""
+    (``scene.placement.sample_route``). False: the superseded straight-corridor layout (docs/results-history.md),
+    in which the Panda cannot solve most scenes with N >= 3. Recorded in the policy's metadata."""
     layout: str = "route"
     """How tightly the clutter hems in the kept-clear route (``scene.placement.LAYOUTS``): 'route' or 'narrow'
     (every object beside the route on both sides, 1 cm to spare). Recorded in the policy's metadata."""
@@ -113,7 +113,7 @@ class TrainConfig:
     envs_per_collector: int = 4
     torch_threads: int = 1
     """Threads for the learner's PyTorch; the collectors use the other core(s)."""
-    # -- learner speed, network, selection-aware training, rollout backend (issue 10)
+    # -- learner speed, network, selection-aware training, rollout backend
     device: str = "auto"
     """Learner device: 'auto' (CUDA if PyTorch sees a GPU, else CPU), 'cpu' or 'cuda'. Rollouts stay on CPUs."""
     precision: str = "auto"
@@ -240,7 +240,7 @@ class TrainConfig:
             raise ConfigError("invalid training config:\n  - " + "\n  - ".join(problems))
 
     def _learner_problems(self) -> list[str]:
-        """Checks of the issue-10 fields (device, precision, network, selection-aware training, backend)."""
+        """Checks of the learner fields (device, precision, network, selection-aware training, backend)."""
         problems = []
         for name, allowed in (("device", ("auto", "cpu", "cuda")), ("precision", ("auto", "bf16", "fp32")),
                               ("network", ("mlp", "set")), ("selector", ("dynamic-knn", "dynamic-radius", "mixed")),

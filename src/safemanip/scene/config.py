@@ -89,8 +89,8 @@ class SceneConfig:
     clear_route: bool = True
     """Keep a route from the lane to the goal clear for the held box and the hand (``placement.sample_route``),
     with the near-path objects beside it, so every scene can be solved. False: the near-path objects stand
-    anywhere around the straight path (the layout of results before 2026-12-02), which walls off most scenes
-    with N >= 3 for a Panda."""
+    anywhere around the straight path (a superseded layout, docs/results-history.md), which walls off most
+    scenes with N >= 3 for a Panda."""
     layout: str = "route"
     """How tightly the clutter hems in the route and which kinds of scene the episodes mix (``placement.LAYOUTS``):
     'route' (the default; open scenes), 'narrow' (a channel: every object beside the route, on both sides, 1 cm to

@@ -48,7 +48,7 @@ Pieces
 
 Measured (SemanticBackend, CPU; catalog = 35 names, ground truth from scene/objects.json, plant pot soft)
 --------------------------------------------------------------------------------------------------------
-- v2 (default): leave-one-out over its 75 examples 86.7 % (recall fragile 0.88, soft 0.96, durable
+- v2 (the default before v3): leave-one-out over its 75 examples 86.7 % (recall fragile 0.88, soft 0.96, durable
   0.76). Held-out catalog 29/35 (fragile 10/11, soft 9/12, durable 10/12). Wrong: egg carton ->
   durable (the one looser-than-truth error); plant pot, plastic cup, yogurt cup -> fragile; pencil
   case, wooden spoon -> fragile. Table III (200 trials x 6 objects, % of appearances, rows GT,

@@ -38,8 +38,8 @@ Embedder = Callable[[list[str]], np.ndarray]
 """Maps names to an (n, d) array of embeddings (any scale; rows are L2-normalised by the caller)."""
 
 DEFAULT_EXAMPLES = "class_examples_v3.json"
-"""v3 stays the default: v4 (issue 11) was measured once on heldout_names_v2.json and the catalog and did not
-meet the unsafe-error target there (README, semantic section); ``--semantic-examples v4`` selects it."""
+"""v3 stays the default: v4 was measured once on heldout_names_v2.json and the catalog and did not meet the
+unsafe-error target there (docs/semantics.md); ``--semantic-examples v4`` selects it."""
 EXAMPLE_FILES = {"v1": "class_examples_v1.json", "v2": "class_examples_v2.json", "v3": "class_examples_v3.json",
                  "v4": "class_examples_v4.json", "v5": "class_examples_v5.json"}
 """Shipped example-set versions (``--semantic-examples v1`` / ``v2`` reproduce the earlier classifiers)."""

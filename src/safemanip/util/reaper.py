@@ -11,7 +11,7 @@ gone sends SIGKILL to every one of them still running under the same start time 
 When PID is gone it first stops (SIGSTOP) every noted process and whatever they started since the last poll,
 then kills them: a Ray worker spawned in the last quarter second before the kill, or one a raylet respawns while
 the reaper is killing its siblings, would otherwise escape (two Ray processes outliving a kill -9 of an eval was
-a rare CI failure, seen again on 2026-12-03 with the earlier last-sweep-then-kill order).
+a rare CI failure with an earlier last-sweep-then-kill order).
 """
 
 from __future__ import annotations
