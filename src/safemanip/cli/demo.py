@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from safemanip.cli.common import SEED, CliError, float_in, int_in
+from safemanip.scene.embodiment import EMBODIMENTS
 
 
 def _cmd_demo(args) -> int:
@@ -40,7 +41,7 @@ def register(sub) -> None:
     demo.add_argument("--seed", type=SEED, default=7)
     demo.add_argument("--n-objects", type=int_in(0, MAX_OBJECTS), default=4, help="objects in the scene (N)")
     demo.add_argument("--camera", default="front", choices=["front", "top"])
-    demo.add_argument("--embodiment", choices=["panda", "hand"],
+    demo.add_argument("--embodiment", choices=sorted(EMBODIMENTS),
                       help="robot (default: the policy's own; the Panda for the scripted controller and the planner)")
     demo.add_argument("--no-video", action="store_true", help="skip rendering (faster, no OpenGL needed)")
     demo.add_argument("--fps", type=int, default=50, choices=[20, 25, 50, 100],

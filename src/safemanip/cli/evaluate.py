@@ -7,6 +7,7 @@ import json
 import sys
 
 from safemanip.cli.common import CliError, add_compute_backend, add_vlm_options, float_in, int_in
+from safemanip.scene.embodiment import EMBODIMENTS
 from safemanip.scene.placement import LAYOUTS
 
 EVAL_EXAMPLES = """examples:
@@ -125,7 +126,7 @@ def register(subparsers) -> None:
     ev.add_argument("--exit-share", type=float_in(0.0, 1.0),
                     help="share of exit scenes (a fragile object past the pull lane), 1 for those only (default: the "
                          "layout's)")
-    ev.add_argument("--embodiment", choices=["panda", "hand"],
+    ev.add_argument("--embodiment", choices=sorted(EMBODIMENTS),
                     help="robot to evaluate on (default: the policy's own; another one is refused)")
     ev.add_argument("--chunk-size", type=int_in(1, 100_000), help="episodes per worker task (default: about 8 tasks per worker)")
     add_vlm_options(ev)

@@ -11,6 +11,7 @@ from dataclasses import fields
 from pathlib import Path
 
 from safemanip.cli.common import SEED, CliError, float_in, int_in
+from safemanip.scene.embodiment import EMBODIMENTS
 from safemanip.scene.placement import LAYOUTS
 
 SWITCH = "switch"  # a flag without a value that sets its field to true
@@ -64,7 +65,7 @@ FLAGS = {
                                    "Ray instance); never read from a config file"),
     "--workers": ("n_collectors", int_in(1, 64), "rollout workers: processes or Ray actors (default 1)"),
 }
-CHOICES = {"--algorithm": ["rarl", "vanilla"], "--constraints": ["conservative", "all"], "--embodiment": ["panda", "hand"],
+CHOICES = {"--algorithm": ["rarl", "vanilla"], "--constraints": ["conservative", "all"], "--embodiment": sorted(EMBODIMENTS),
            "--device": ["auto", "cpu", "cuda"], "--precision": ["auto", "bf16", "fp32"], "--network": ["mlp", "set"],
            "--selector": ["dynamic-knn", "dynamic-radius", "mixed"], "--backend": ["local", "ray"],
            "--layout": list(LAYOUTS)}

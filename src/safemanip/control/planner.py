@@ -260,7 +260,7 @@ class GridPlanner:
             return
         avoided = None if self.avoid == "all" else [i for i, c in enumerate(env.constraints) if c == "no_contact"]
         parts = part_extents(env, avoided)
-        reach = holding_reach(env.geometry) if getattr(env.robot, "name", None) == "panda" else None
+        reach = env.robot.holding_reach(env.geometry)
         # the safe edge of the reach map: on the generous one the arm can stall against a joint limit
         spaces = [FreeSpace(env, clearance, parts=parts, reach=reach, reach_edge="all") for clearance in self.clearances]
         space = spaces[-1]  # the narrowest: every cell the box may be in

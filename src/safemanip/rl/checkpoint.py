@@ -20,6 +20,7 @@ import numpy as np
 from safetensors.numpy import load_file as load_numpy
 from safetensors.numpy import save_file as save_numpy
 
+from safemanip.scene.embodiment import EMBODIMENTS
 from safemanip.util.files import JSONInputError, atomic_path, atomic_write_text, parse_json, read_json_file
 
 POLICY_FORMAT = "safemanip-policy/1"
@@ -365,9 +366,6 @@ def _checked_set_arrays(path: Path, tensors: dict[str, np.ndarray], meta: dict) 
     if wrong:
         raise PolicyFileError(f"{path}: the metadata does not match the weights: {', '.join(wrong)}")
     return {k[len("set."):]: v for k, v in tensors.items()}
-
-
-EMBODIMENTS = ("panda", "hand")
 
 
 def embodiment_problem(meta: dict, wanted: str | None, name: str) -> str | None:

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from safemanip.rl.envs import DEFAULT_ENV, ENVS, LEGACY_FACTORIES, SELECTED_ENV, check_env
 from safemanip.scene.config import MAX_OBJECTS
+from safemanip.scene.embodiment import EMBODIMENTS
 from safemanip.scene.placement import LAYOUTS
 
 
@@ -199,8 +200,9 @@ class TrainConfig:
             problems.append(f"max_episode_steps must be >= 1, got {self.max_episode_steps}")
         if self.learning_starts < self.batch_size:
             problems.append(f"learning_starts ({self.learning_starts}) must be >= batch_size ({self.batch_size})")
-        if self.embodiment not in ("panda", "hand"):
-            problems.append(f"embodiment must be 'panda' or 'hand', got {self.embodiment!r}")
+        if self.embodiment not in EMBODIMENTS:
+            problems.append(f"embodiment must be one of {', '.join(map(repr, sorted(EMBODIMENTS)))}, got "
+                            f"{self.embodiment!r}")
         if self.random_steps < 0:
             problems.append(f"random_steps must be >= 0, got {self.random_steps}")
         if not 0 < self.env_steps_per_update <= 10_000:

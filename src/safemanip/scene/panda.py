@@ -248,6 +248,10 @@ class PandaArm:
             jacp=np.zeros((3, nv)), jacr=np.zeros((3, nv)), jac6=np.zeros((6, 7)), twist=np.zeros(6),
             qpos=_as_slice(np.array([j.qposadr[0] for j in joints])), dofs=_as_slice(dofs))
 
+    def holding_reach(self, geo: TaskGeometry) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Where on the table the arm can hold the box (``holding_reach``, solved once per process)."""
+        return holding_reach(geo)
+
     # ------------------------------------------------------------------ episode
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, binding: PandaBinding) -> None:
         data.qpos[binding.qpos_adr] = binding.home_qpos
