@@ -221,3 +221,28 @@ def test_ik_building_blocks_match_their_textbook_forms():
                                pinv @ twist + posture - pinv @ jac @ posture, atol=1e-10)
     # with no damping and a full-rank J, the twist is tracked exactly whatever the null-space term
     np.testing.assert_allclose(jac @ dls_joint_velocity(jac, twist, 0.0, posture), twist, atol=1e-9)
+
+
+@pytest.mark.slow
+def test_a_shipped_policy_stays_within_franka_limits():
+    """100 rollouts of the shipped pi_2 in its own scenes (half of them exit scenes, where it pulls hard and brakes),
+    watched at every 2 ms substep: joint speeds, positions, accelerations over every 50 ms window and jerks stay
+    within Franka's limits (``assert_within_franka_joint_limits``)."""
+    from safemanip.rl.checkpoint import load_policy
+
+    actor, meta = load_policy("rarl-k2-conservative-s0")
+    env = SlideOutEnv(**meta["env_kwargs"])
+    samples = []
+    _watch_arm(env, samples)
+    steps = 0
+    for episode in range(100):
+        obs, _ = env.reset(seed=900_000 + episode)
+        samples.clear()
+        env._substep_hook[1](env)
+        while True:
+            obs, _, terminated, truncated, _ = env.step(actor(obs[None])[0])
+            steps += 1
+            if terminated or truncated:
+                break
+        assert_within_franka_joint_limits(np.array([s[1] for s in samples]), np.array([s[2] for s in samples]))
+    assert steps > 1000  # the rollouts did move the arm
