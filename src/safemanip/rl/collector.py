@@ -1,14 +1,15 @@
 """Rollout workers: each simulates a few envs round-robin on its own core and streams transitions to the
 learner, acting with the latest actor weights it has been sent (NumPy forward pass, no torch import).
 
-One ``RolloutWorker`` class does the stepping; two pools run it:
+One ``RolloutWorker`` class does the stepping; three pools run it:
 
   ``LocalPool``  worker *processes* (spawn) that loop on their own, pushing chunks into a queue and
                  holding the data rate through a shared counter of env steps and learner updates;
   ``RayPool``    Ray *actors*, one ``collect`` call per chunk: the learner keeps one call in flight per
                  actor and only issues the next while the data rate allows (same rule as the local
                  loop), sending new weights with the call when they changed. Ray actors can live on
-                 other machines (``TrainConfig.address``); the learner stays in the driver process.
+                 other machines (``TrainConfig.address``); the learner stays in the driver process;
+  ``InlinePool`` the workers in the learner's own process, one chunk at a time: deterministic for a seed.
 
 Both produce the same transition dicts (``TRANSITION_KEYS``, float32 / bool arrays) from the same
 ``RolloutWorker.step_all`` code, so the buffer cannot tell them apart. The pools resolve the env in this
@@ -300,6 +301,49 @@ class RayPool:
             self.ray.shutdown()
 
 
+# ------------------------------------------------------------------------------------------ in this process
+class InlinePool:
+    """``cfg.n_collectors`` ``RolloutWorker``s in the learner's own process; same interface as ``LocalPool``. ``get``
+    collects one chunk (from the workers in turn) whenever the data rate allows, so a run is deterministic for its
+    seed: slower than a worker on another core, but what a short test of the real training loop needs."""
+
+    def __init__(self, cfg, env_kwargs: dict, seed: int, env_steps: int, updates: int):
+        build = env_builder(env_kwargs)
+        self.cfg = cfg
+        self.workers = [RolloutWorker(build, seed, w, cfg.envs_per_collector, cfg.exploration_noise,
+                                      cfg.noise_per_episode, cfg.noise_color) for w in range(cfg.n_collectors)]
+        self.env_steps, self.updates, self.turn = int(env_steps), int(updates), 0
+
+    def set_updates(self, updates: int) -> None:
+        self.updates = updates
+
+    def dead(self) -> int | None:
+        return None
+
+    def broadcast(self, arrays) -> None:
+        for worker in self.workers:
+            worker.set_weights(arrays)
+
+    def get(self, timeout: float):
+        cfg = self.cfg
+        if self.env_steps + CHUNK > allowed_env_steps(self.updates, cfg.learning_starts, cfg.env_steps_per_update) + CHUNK:
+            raise queue.Empty
+        worker = self.workers[self.turn]
+        self.turn = (self.turn + 1) % len(self.workers)
+        chunk, episodes = worker.collect(CHUNK, self.env_steps < cfg.random_steps)
+        self.env_steps += len(chunk["obs"])
+        return chunk, episodes
+
+    def close(self) -> None:
+        for worker in self.workers:
+            for env in worker.envs:
+                env.close()
+
+
+POOLS = {"local": LocalPool, "ray": RayPool, "inline": InlinePool}
+"""The rollout backends by name (``TrainConfig.backend``)."""
+
+
 def make_pool(cfg, env_kwargs: dict, seed: int, env_steps: int = 0, updates: int = 0):
-    """The rollout workers of ``cfg.backend`` ('local' processes or 'ray' actors)."""
-    return (RayPool if cfg.backend == "ray" else LocalPool)(cfg, env_kwargs, seed, env_steps, updates)
+    """The rollout workers of ``cfg.backend``: local processes, Ray actors, or inline in this process."""
+    return POOLS[cfg.backend](cfg, env_kwargs, seed, env_steps, updates)

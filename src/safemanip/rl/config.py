@@ -146,7 +146,8 @@ class TrainConfig:
     start this run: fine-tuning, e.g. a policy trained at N = k continued in larger scenes. The optimiser
     state and replay buffer start afresh; k, network, sizes, embodiment and action curve must match."""
     backend: str = "local"
-    """Rollout workers as local processes ('local') or Ray actors ('ray'); the learner stays in this process."""
+    """Rollout workers as local processes ('local'), Ray actors ('ray') or in the learner's own process, one chunk at
+    a time ('inline': slower, deterministic for a seed); the learner stays in this process."""
     address: str | None = None
     """Ray cluster address (HOST:PORT or 'auto'); None starts a local Ray instance (or joins RAY_ADDRESS). Only with
     backend='ray'. Set from the --address flag only: never written to config.json (``to_json``), refused in a
@@ -246,7 +247,7 @@ class TrainConfig:
         problems = []
         for name, allowed in (("device", ("auto", "cpu", "cuda")), ("precision", ("auto", "bf16", "fp32")),
                               ("network", ("mlp", "set")), ("selector", ("dynamic-knn", "dynamic-radius", "mixed")),
-                              ("backend", ("local", "ray"))):
+                              ("backend", ("local", "ray", "inline"))):
             value = getattr(self, name)
             if value not in allowed and not (name == "device" and str(value).startswith("cuda:")
                                              and value[len("cuda:"):].isdigit()):

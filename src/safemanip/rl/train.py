@@ -229,202 +229,249 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
                               f"\"config\" in {checkpoint / 'meta.json'}), or start a new run with --out")
     cfg.out_dir = str(run_dir)  # the folder actually written (a copied run folder is its own run)
     atomic_write_text(run_dir / "config.json", cfg.to_json())
-
-    # ---- seeding, all in one place
-    rng = np.random.default_rng(cfg.seed)
-    torch.manual_seed(cfg.seed)
-    torch.set_num_threads(cfg.torch_threads)
-
-    probe = make_env(cfg.rollout_env_kwargs)
-    obs_dim, act_dim = probe.observation_space.shape[0], probe.action_space.shape[0]
-    probe.close()
-    learner = Learner(obs_dim, act_dim, cfg)
-    print(f"learner: {learner.precision.device}, {learner.precision.dtype} ({learner.precision.reason}); "
-          f"network {cfg.network}; rollouts: {cfg.backend}, {cfg.n_collectors} worker(s)")
-    buffer = ReplayBuffer(cfg.buffer_size, obs_dim, act_dim)
-    env_steps = updates = 0
-    elapsed_before = 0.0
-    restarts = 0
-    best = {"success": -1.0}
+    trainer = Trainer(cfg, run_dir, command)
     if resumed is not None:
+        trainer.restore(resumed, checkpoint)
+    else:
+        trainer.start_fresh(warm)
+    trainer.run(progress)
+    return run_dir
+
+
+class Trainer:
+    """One training run, phase by phase. ``run`` is the loop and reads top to bottom: ``collect`` takes in the
+    rollout workers' transitions, ``update`` takes learner steps at the configured data rate, and ``log``,
+    ``evaluate`` and ``checkpoint`` run on their own clocks; ``finish`` saves the policy and the summary."""
+
+    def __init__(self, cfg: TrainConfig, run_dir: Path, command: str | None):
+        self.cfg, self.run_dir, self.command = cfg, run_dir, command
+        # ---- seeding, all in one place (a resumed run reseeds the sampler in ``restore``)
+        self.rng = np.random.default_rng(cfg.seed)
+        torch.manual_seed(cfg.seed)
+        torch.set_num_threads(cfg.torch_threads)
+
+        probe = make_env(cfg.rollout_env_kwargs)
+        self.obs_dim, self.act_dim = probe.observation_space.shape[0], probe.action_space.shape[0]
+        probe.close()
+        self.learner = Learner(self.obs_dim, self.act_dim, cfg)
+        print(f"learner: {self.learner.precision.device}, {self.learner.precision.dtype} "
+              f"({self.learner.precision.reason}); network {cfg.network}; rollouts: {cfg.backend}, "
+              f"{cfg.n_collectors} worker(s)")
+        self.buffer = ReplayBuffer(cfg.buffer_size, self.obs_dim, self.act_dim)
+        self.env_steps = self.updates = 0
+        self.elapsed_before = 0.0
+        self.restarts = 0
+        self.best: dict = {"success": -1.0}
+        self.last_eval_result: dict | None = None
+        self.last_metrics: dict[str, float] = {}
+        self.recent_events: deque[str] = deque(maxlen=200)
+        self.gamma = cfg.gamma_at(0.0)
+        self.learning_rate = cfg.learning_rate_at(0.0)
+        self.interrupted = self.worker_failed = None
+        self.pool = self.log_file = self.bar = None
+        self.start = time.perf_counter()
+
+    # ------------------------------------------------------------------ the run's start
+    def restore(self, resumed: tuple, checkpoint: Path) -> None:
+        """Continue from a checkpoint read (and checked) by ``read_checkpoint``."""
+        cfg, run_dir = self.cfg, self.run_dir
         tensors, replay_path, meta = resumed
         try:
-            learner.load_state_tensors(tensors)
+            self.learner.load_state_tensors(tensors)
         except (RuntimeError, KeyError, ValueError) as err:  # shapes or names that do not fit this config's networks
             raise CheckpointError(f"--resume {run_dir}: the networks in {checkpoint / 'state.safetensors'} do not fit "
                                   f"its config.json ({str(err)[:200]}). {recovery_hint(run_dir)}") from err
-        learner.updates = updates = meta["updates"]
+        self.learner.updates = self.updates = meta["updates"]
         try:
-            buffer.load(replay_path)
+            self.buffer.load(replay_path)
         except ReplayFileError as err:
             raise CheckpointError(f"--resume {run_dir}: the replay buffer cannot be restored: {err}. The run cannot "
                                   f"continue exactly from this checkpoint; to keep its networks, start a new run from "
                                   f"them (fresh replay buffer): safemanip train --config {run_dir / 'config.json'} "
                                   f"--init-from {run_dir} --out NEW_FOLDER; or restore {replay_path.name} from a "
                                   f"backup") from err
-        env_steps, elapsed_before = meta["env_steps"], meta["elapsed_s"]
-        restarts = meta.get("restarts", 0) + 1
-        best = meta.get("best", best)
-        rng = np.random.default_rng([cfg.seed, restarts])
-        truncate_logs(run_dir, env_steps)
-        print(f"resuming {run_dir} from {env_steps} env steps / {updates} updates ({elapsed_before / 60:.1f} min)")
-    else:
-        # leftovers of a run killed before its first checkpoint
+        self.env_steps, self.elapsed_before = meta["env_steps"], meta["elapsed_s"]
+        self.restarts = meta.get("restarts", 0) + 1
+        self.best = meta.get("best", self.best)
+        self.rng = np.random.default_rng([cfg.seed, self.restarts])
+        truncate_logs(run_dir, self.env_steps)
+        print(f"resuming {run_dir} from {self.env_steps} env steps / {self.updates} updates "
+              f"({self.elapsed_before / 60:.1f} min)")
+
+    def start_fresh(self, warm: tuple[dict, dict] | None) -> None:
+        """Clear the leftovers of a run killed before its first checkpoint; start from ``warm`` networks if given."""
+        run_dir = self.run_dir
         for stale in ("scalars.csv", "evals.jsonl", "summary.json", "init_from.json"):
             (run_dir / stale).unlink(missing_ok=True)
         shutil.rmtree(run_dir / "tb", ignore_errors=True)
         if warm is not None:
-            learner.load_state_tensors(warm[0])  # networks only: fresh optimiser moments, empty replay buffer
+            self.learner.load_state_tensors(warm[0])  # networks only: fresh optimiser moments, empty replay buffer
             atomic_write_text(run_dir / "init_from.json", json.dumps(warm[1], indent=1))  # survives --resume
             print(f"networks from {warm[1]['run']} ({warm[1]['updates']} updates, {warm[1]['env_steps']} env steps, "
                   f"{warm[1]['elapsed_s'] / 60:.1f} min of training before this run)")
 
-    # ---- rollout workers on the other core(s): local processes (dying with this one) or Ray actors
-    pool = make_pool(cfg, cfg.rollout_env_kwargs, cfg.seed + 1000 * restarts, env_steps, updates)
+    # ------------------------------------------------------------------ the loop
+    def run(self, progress: bool) -> None:
+        cfg = self.cfg
+        # rollout workers on the other core(s): local processes (dying with this one), Ray actors, or inline
+        self.pool = make_pool(cfg, cfg.rollout_env_kwargs, cfg.seed + 1000 * self.restarts, self.env_steps,
+                              self.updates)
+        self.broadcast()
+        self.log_file = ScalarLog(self.run_dir)
+        if progress:
+            from tqdm import tqdm
 
-    def broadcast() -> None:
-        pool.broadcast(actor_arrays(learner.actor))
+            self.bar = tqdm(total=cfg.total_env_steps, initial=self.env_steps, unit="step", dynamic_ncols=True,
+                            smoothing=0.05)
+        self.start = time.perf_counter()
+        last_log = last_eval = last_ckpt = last_alive_check = self.start
+        self.steps_at_log, self.updates_at_log = self.env_steps, self.updates
+        with stop_on_signals(raise_exc=False) as stopped:
+            try:
+                while not self.done(stopped):
+                    got = self.collect()
+                    if self.worker_failed:
+                        break
+                    if not self.update() and got == 0:
+                        time.sleep(0.001)
+                    now = time.perf_counter()
+                    if now - last_alive_check >= 1.0:
+                        if self.workers_dead():
+                            break
+                        last_alive_check = now
+                    if now - last_log >= cfg.log_every_s:
+                        self.log(now - last_log)
+                        last_log = now
+                    if self.buffer.size >= cfg.learning_starts and now - last_eval >= cfg.eval_every_s:
+                        self.evaluate()
+                        last_eval = time.perf_counter()
+                    if now - last_ckpt >= cfg.checkpoint_every_s:
+                        self.checkpoint()
+                        last_ckpt = time.perf_counter()
+            finally:
+                self.pool.close()
+                if self.bar is not None:
+                    self.bar.close()
+        self.finish()
 
-    broadcast()
-    log = ScalarLog(run_dir)
-    bar = None
-    if progress:
-        from tqdm import tqdm
+    def done(self, stopped: dict) -> bool:
+        """The budget is used up, or SIGINT/SIGTERM asked for a stop (checked here: no update is cut in half)."""
+        cfg = self.cfg
+        if stopped["signum"] is not None:
+            self.interrupted = signal.Signals(stopped["signum"]).name
+            return True
+        return self.env_steps >= cfg.total_env_steps or (cfg.minutes is not None and self.elapsed() >= 60 * cfg.minutes)
 
-        bar = tqdm(total=cfg.total_env_steps, initial=env_steps, unit="step", dynamic_ncols=True, smoothing=0.05)
-    recent_events: deque[str] = deque(maxlen=200)
-    last_metrics: dict[str, float] = {}
-    start = time.perf_counter()
-    last_log = last_eval = last_ckpt = start
-    steps_at_log, updates_at_log = env_steps, updates
-    last_eval_result: dict | None = None
-    gamma = cfg.gamma_at(0.0)
-    learning_rate = cfg.learning_rate_at(0.0)
+    def collect(self) -> int:
+        """Take in whatever the workers produced; returns the number of chunks."""
+        got = 0
+        while True:
+            try:
+                wait = 0.05 if self.buffer.size < self.cfg.learning_starts and got == 0 else 0.0
+                chunk, episodes = self.pool.get(wait)
+            except queue.Empty:
+                break
+            except WorkerDied as err:  # a Ray actor that died: reported by its call
+                self.worker_failed = str(err)
+                break
+            self.buffer.add_many(chunk)
+            self.recent_events.extend(e for e, _ in episodes)
+            got += 1
+        self.env_steps = self.pool.env_steps
+        return got
 
-    def elapsed() -> float:
-        return elapsed_before + time.perf_counter() - start
+    def update(self) -> bool:
+        """One learner update, if the data rate allows it: gamma and the learning rate follow the budget used."""
+        cfg = self.cfg
+        if self.buffer.size < cfg.learning_starts or \
+                self.updates >= (self.env_steps - cfg.learning_starts) / cfg.env_steps_per_update + 1:
+            return False
+        budget_used = self.env_steps / cfg.total_env_steps if cfg.minutes is None \
+            else max(self.env_steps / cfg.total_env_steps, self.elapsed() / (60 * cfg.minutes))
+        self.gamma = cfg.gamma_at(budget_used)
+        if cfg.learning_rate_final is not None:
+            self.learning_rate = cfg.learning_rate_at(budget_used)
+            self.learner.set_learning_rate(self.learning_rate)
+        self.last_metrics = self.learner.update(self.buffer.sample(cfg.batch_size, self.rng), self.gamma)
+        self.updates += 1
+        self.pool.set_updates(self.updates)
+        if self.updates % SYNC_EVERY == 0:
+            self.broadcast()
+        return True
 
-    def save_checkpoint() -> None:
-        meta = {"env_steps": env_steps, "updates": updates, "elapsed_s": elapsed(), "restarts": restarts,
-                "best": best, "config": json.loads(cfg.to_json())}
-        write_checkpoint(run_dir, learner.state_tensors(), buffer, meta)
+    def broadcast(self) -> None:
+        self.pool.broadcast(actor_arrays(self.learner.actor))
 
-    def run_eval() -> None:
-        nonlocal last_eval_result, best
-        result = evaluate_now(learner.actor, cfg, cfg.eval_episodes)
-        result.update(env_steps=env_steps, updates=updates, wall_s=round(elapsed(), 1))
-        last_eval_result = result
-        log.log({f"eval/{k}": v for k, v in result.items() if isinstance(v, float) and k != "wall_s"},
-                env_steps, updates, elapsed())
-        with open(run_dir / "evals.jsonl", "a") as f:  # one whole line per write
+    def workers_dead(self) -> bool:
+        """A worker that died (an env error, out of memory) ends the run with its exit code."""
+        dead = self.pool.dead()
+        if dead is not None:
+            self.worker_failed = f"a rollout worker {describe_exit(dead)}"
+        return dead is not None
+
+    def log(self, dt: float) -> None:
+        rates = {"perf/env_steps_per_s": (self.env_steps - self.steps_at_log) / dt,
+                 "perf/updates_per_s": (self.updates - self.updates_at_log) / dt}
+        n_ep = max(1, len(self.recent_events))
+        rollout = {f"rollout/{k}": v / n_ep for k, v in Counter(self.recent_events).items()}
+        self.log_file.log({**rates, **self.last_metrics, **rollout, "train/gamma": self.gamma,
+                           "train/learning_rate": self.learning_rate}, self.env_steps, self.updates, self.elapsed())
+        if self.bar is not None:
+            self.bar.update(self.env_steps - self.bar.n)
+            post = {"steps/s": f"{rates['perf/env_steps_per_s']:.0f}", "upd/s": f"{rates['perf/updates_per_s']:.0f}"}
+            if self.last_eval_result:
+                post["eval"] = f"{100 * self.last_eval_result['success']:.0f}%"
+            self.bar.set_postfix(post)
+        self.steps_at_log, self.updates_at_log = self.env_steps, self.updates
+
+    def evaluate(self) -> None:
+        """Held-out episodes with the current actor; the best so far is kept as ``best.safetensors``."""
+        result = evaluate_now(self.learner.actor, self.cfg, self.cfg.eval_episodes)
+        result.update(env_steps=self.env_steps, updates=self.updates, wall_s=round(self.elapsed(), 1))
+        self.last_eval_result = result
+        self.log_file.log({f"eval/{k}": v for k, v in result.items() if isinstance(v, float) and k != "wall_s"},
+                          self.env_steps, self.updates, self.elapsed())
+        with open(self.run_dir / "evals.jsonl", "a") as f:  # one whole line per write
             f.write(json.dumps(result) + "\n")
-        if result["success"] >= best["success"]:
-            best = result
-            save_policy(run_dir / "best.safetensors", actor_arrays(learner.actor),
-                        policy_meta(cfg, obs_dim, act_dim, result, env_steps, updates, elapsed(), command))
+        if result["success"] >= self.best["success"]:
+            self.best = result
+            save_policy(self.run_dir / "best.safetensors", actor_arrays(self.learner.actor), self.policy_meta(result))
 
-    interrupted = worker_failed = None
-    last_alive_check = start
-    with stop_on_signals(raise_exc=False) as stopped:
-        try:
-            while True:
-                # ---- budget, or a stop asked for with SIGINT/SIGTERM (checked here: no update is cut in half)
-                if stopped["signum"] is not None:
-                    interrupted = signal.Signals(stopped["signum"]).name
-                    break
-                if env_steps >= cfg.total_env_steps or (cfg.minutes is not None and elapsed() >= 60 * cfg.minutes):
-                    break
-                # ---- take in whatever the workers produced
-                got = 0
-                while True:
-                    try:
-                        chunk, episodes = pool.get(0.05 if buffer.size < cfg.learning_starts and got == 0 else 0.0)
-                    except queue.Empty:
-                        break
-                    except WorkerDied as err:  # a Ray actor that died: reported by its call
-                        worker_failed = str(err)
-                        break
-                    buffer.add_many(chunk)
-                    recent_events.extend(e for e, _ in episodes)
-                    got += 1
-                if worker_failed:
-                    break
-                env_steps = pool.env_steps
-                # ---- learn, at the configured update-to-data ratio
-                can_update = buffer.size >= cfg.learning_starts and \
-                    updates < (env_steps - cfg.learning_starts) / cfg.env_steps_per_update + 1
-                if can_update:
-                    budget_used = env_steps / cfg.total_env_steps if cfg.minutes is None \
-                        else max(env_steps / cfg.total_env_steps, elapsed() / (60 * cfg.minutes))
-                    gamma = cfg.gamma_at(budget_used)
-                    if cfg.learning_rate_final is not None:
-                        learning_rate = cfg.learning_rate_at(budget_used)
-                        learner.set_learning_rate(learning_rate)
-                    last_metrics = learner.update(buffer.sample(cfg.batch_size, rng), gamma)
-                    updates += 1
-                    pool.set_updates(updates)
-                    if updates % SYNC_EVERY == 0:
-                        broadcast()
-                elif got == 0:
-                    time.sleep(0.001)
-                now = time.perf_counter()
-                # ---- a worker that died (an env error, out of memory) ends the run with its exit code
-                if now - last_alive_check >= 1.0:
-                    dead = pool.dead()
-                    if dead is not None:
-                        worker_failed = f"a rollout worker {describe_exit(dead)}"
-                        break
-                    last_alive_check = now
-                # ---- log
-                if now - last_log >= cfg.log_every_s:
-                    dt = now - last_log
-                    rates = {"perf/env_steps_per_s": (env_steps - steps_at_log) / dt,
-                             "perf/updates_per_s": (updates - updates_at_log) / dt}
-                    train_events = Counter(recent_events)
-                    n_ep = max(1, len(recent_events))
-                    rollout = {f"rollout/{k}": v / n_ep for k, v in train_events.items()}
-                    log.log({**rates, **last_metrics, **rollout, "train/gamma": gamma,
-                             "train/learning_rate": learning_rate}, env_steps, updates, elapsed())
-                    if bar is not None:
-                        bar.update(env_steps - bar.n)
-                        post = {"steps/s": f"{rates['perf/env_steps_per_s']:.0f}",
-                                "upd/s": f"{rates['perf/updates_per_s']:.0f}"}
-                        if last_eval_result:
-                            post["eval"] = f"{100 * last_eval_result['success']:.0f}%"
-                        bar.set_postfix(post)
-                    last_log, steps_at_log, updates_at_log = now, env_steps, updates
-                # ---- evaluate
-                if buffer.size >= cfg.learning_starts and now - last_eval >= cfg.eval_every_s:
-                    run_eval()
-                    last_eval = time.perf_counter()
-                # ---- checkpoint
-                if now - last_ckpt >= cfg.checkpoint_every_s:
-                    save_checkpoint()
-                    last_ckpt = time.perf_counter()
-        finally:
-            pool.close()
-            if bar is not None:
-                bar.close()
-        if worker_failed is not None:  # the learner and its buffer are whole: save them, then report
-            print(f"{worker_failed}: stopping; saving a checkpoint and the current policy (no final evaluation)")
-        elif interrupted is None:
-            run_eval()
+    def checkpoint(self) -> None:
+        meta = {"env_steps": self.env_steps, "updates": self.updates, "elapsed_s": self.elapsed(),
+                "restarts": self.restarts, "best": self.best, "config": json.loads(self.cfg.to_json())}
+        write_checkpoint(self.run_dir, self.learner.state_tensors(), self.buffer, meta)
+
+    # ------------------------------------------------------------------ the run's end
+    def finish(self) -> None:
+        """Evaluate once more (unless stopped), checkpoint, save the policy and the summary."""
+        run_dir = self.run_dir
+        if self.worker_failed is not None:  # the learner and its buffer are whole: save them, then report
+            print(f"{self.worker_failed}: stopping; saving a checkpoint and the current policy (no final evaluation)")
+        elif self.interrupted is None:
+            self.evaluate()
         else:
-            print(f"{interrupted}: stopping; saving a checkpoint and the current policy (no final evaluation)")
-        save_checkpoint()
-        save_policy(run_dir / "policy.safetensors", actor_arrays(learner.actor),
-                    policy_meta(cfg, obs_dim, act_dim, last_eval_result, env_steps, updates, elapsed(), command))
-        log.close()
-        summary = {"env_steps": env_steps, "updates": updates, "wall_s": round(elapsed(), 1),
-                   "final_eval": last_eval_result, "best_eval": best, "interrupted": interrupted,
-                   "worker_failed": worker_failed, "learner": learner.precision.as_dict()}
+            print(f"{self.interrupted}: stopping; saving a checkpoint and the current policy (no final evaluation)")
+        self.checkpoint()
+        save_policy(run_dir / "policy.safetensors", actor_arrays(self.learner.actor),
+                    self.policy_meta(self.last_eval_result))
+        self.log_file.close()
+        summary = {"env_steps": self.env_steps, "updates": self.updates, "wall_s": round(self.elapsed(), 1),
+                   "final_eval": self.last_eval_result, "best_eval": self.best, "interrupted": self.interrupted,
+                   "worker_failed": self.worker_failed, "learner": self.learner.precision.as_dict()}
         if (run_dir / "init_from.json").exists():  # whose networks this run started from: count its training too
             try:
                 summary["init_from"] = read_json_file(run_dir / "init_from.json", max_bytes=100_000)
             except (OSError, ValueError) as err:
                 summary["init_from"] = {"unreadable": str(err)[:200]}
         atomic_write_text(run_dir / "summary.json", json.dumps(summary, indent=1))
-    if worker_failed is not None:
-        raise WorkerDied(f"{worker_failed}; the run stopped after {env_steps} env steps and saved a checkpoint and its "
-                         f"policy in {run_dir}; continue with: safemanip train --resume {run_dir}")
-    return run_dir
+        if self.worker_failed is not None:
+            raise WorkerDied(f"{self.worker_failed}; the run stopped after {self.env_steps} env steps and saved a "
+                             f"checkpoint and its policy in {run_dir}; continue with: safemanip train --resume {run_dir}")
+
+    def elapsed(self) -> float:
+        return self.elapsed_before + time.perf_counter() - self.start
+
+    def policy_meta(self, eval_result: dict | None) -> dict:
+        return policy_meta(self.cfg, self.obs_dim, self.act_dim, eval_result, self.env_steps, self.updates,
+                           self.elapsed(), self.command)
