@@ -193,7 +193,7 @@ def vlm_option_problems(req, uses_vlm: bool) -> list[str]:
 
 def prepare(req: EvalRequest) -> Prepared:
     """Validate the whole request (no episode runs before this passes) and build the worker spec."""
-    from safemanip.scene.config import MAX_OBJECTS, SceneConfig, parse_semantics
+    from safemanip.scene.config import MAX_OBJECTS, SceneConfig
 
     problems: list[str] = []
     notes: list[str] = []

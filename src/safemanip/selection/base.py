@@ -9,7 +9,7 @@ says ``privileged`` or ``ground-truth`` may read them.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Protocol, Sequence
+from typing import Callable, Protocol
 
 import numpy as np
 

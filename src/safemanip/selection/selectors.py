@@ -35,7 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from safemanip.scene.catalog import CONSTRAINT_OF_CLASS
-from safemanip.selection.base import ConstraintSelector, ObjectSelector, SceneView, nearest_ids
+from safemanip.selection.base import SceneView, nearest_ids
 
 DEFAULT_INTERVAL = 4  # paper Sec. V: Dynamic-kNN and Dynamic-VLM are queried every four time steps
 DEFAULT_RADIUS = 0.35  # dynamic-radius: about the box's half length plus one object footprint plus a step's travel

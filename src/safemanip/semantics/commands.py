@@ -286,7 +286,6 @@ def render_query(seed: int, out_dir: str, *, n_objects: int = 4, steps: int = 8,
     JSON also says what it picked; without one the k nearest objects are "picked".
     The episode may end early (collision, success); then the last query before the end is written.
     """
-    import json
     import os
     from pathlib import Path
 
