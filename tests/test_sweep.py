@@ -158,7 +158,7 @@ def test_printed_train_command_reproduces_the_shipped_recipe():
     cell = next(c for c in cells_of(load_config("fig5")) if c.k == 3 and c.variant == "" and c.train_seed == 1)
     command = cell.train_command().split(" && ")[0]
     args = build_parser().parse_args(shlex.split(command)[1:])
-    given = {field: getattr(args, field) for field, _, _ in FLAGS.values() if getattr(args, field) is not None}
+    given = {field: getattr(args, field) for field in FLAGS.values() if getattr(args, field) is not None}
     printed = json.loads(json.dumps(TrainConfig.from_dict(given).__dict__))  # as stored: tuples become lists
     shipped = load_policy("rarl-k2-conservative-s0")[1]["train_config"]
     differ = {f for f in printed if f in shipped and printed[f] != shipped[f]}

@@ -40,7 +40,7 @@ def test_cli_rejects_a_bad_config_with_a_message(tmp_path):
     out = subprocess.run([sys.executable, "-m", "safemanip.cli", "train", "--gamma", "2", "--out", str(tmp_path / "r")],
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 2
-    assert "argument --gamma: must be in [0, 1], got 2" in out.stderr
+    assert "argument --gamma: must be in (0, 1), got 2" in out.stderr
     assert not (tmp_path / "r").exists()
 
 

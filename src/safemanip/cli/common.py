@@ -46,6 +46,52 @@ def float_in(lo: float, hi: float, lo_open: bool = False):
     return parse
 
 
+def bounded(kind: type, bounds):
+    """argparse type: an int or a finite float within ``bounds`` (an ``rl.config.Bounds``), with the same message
+    as the config's own check."""
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {'an integer' if kind is int else 'a number'}, got {text!r}") \
+                from None
+        if kind is float and not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+        if not bounds.contains(value):
+            raise argparse.ArgumentTypeError(f"must be in {bounds}, got {value:g}")
+        return value
+    parse.__name__ = "integer" if kind is int else "number"
+    return parse
+
+
+def add_config_flags(parser: argparse.ArgumentParser, cls: type, flags: dict[str, str], bounds: dict,
+                     choices: dict, extra_help: dict[str, str] | None = None) -> None:
+    """One argparse option per ``flags`` entry (flag -> field of the dataclass ``cls``), generated from the field:
+    its type from the annotation (a bool is a switch), its range and choices from ``bounds`` and ``choices`` (the
+    tables the config checks itself against), its help from the field's docstring (``util.docs.field_docs``), first
+    sentence, plus ``extra_help`` for what only the command line has. Unset flags are None: the config's default."""
+    from dataclasses import fields
+
+    from safemanip.util.docs import field_docs, first_sentence
+
+    docs = field_docs(cls)
+    types = {f.name: f.type for f in fields(cls)}
+    for flag, name in flags.items():
+        kind = types[name].replace(" | None", "").strip()
+        help_ = first_sentence(docs.get(name, "")) + ((" " + extra_help[name]) if extra_help and name in extra_help else "")
+        help_ = help_.replace("%", "%%")
+        if kind == "bool":
+            parser.add_argument(flag, dest=name, action="store_const", const=True, default=None, help=help_)
+            continue
+        typ = None
+        if kind in ("int", "float") and name in bounds:
+            typ = bounded(int if kind == "int" else float, bounds[name])
+        elif kind in ("int", "float"):
+            typ = int if kind == "int" else float
+        allowed = sorted(choices[name]) if name in choices else None
+        parser.add_argument(flag, dest=name, type=typ, choices=allowed, default=None, help=help_)
+
+
 SEED = int_in(0, 2**31 - 1)
 """Every command's --seed: a non-negative integer numpy and MuJoCo accept."""
 

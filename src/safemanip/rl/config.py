@@ -56,21 +56,30 @@ class TrainConfig:
     minutes: float | None = 60.0
     """Budget in wall-clock minutes (None: no time limit)."""
     seed: int = 0
+    """Seed of everything random in the run: the learner's networks and sampling, the rollout workers' scenes and
+    exploration noise."""
     out_dir: str = "runs/rarl"
+    """Run folder: config, checkpoints, logs, evaluations and policies."""
     # -- Table V
     batch_size: int = 200
+    """Transitions per learner update (Table V)."""
     learning_rate: float = 1e-3
+    """AdamW learning rate of the actor and the critics (Table V)."""
     learning_rate_final: float | None = None
     """If set, both learning rates fall from ``learning_rate`` to this on a cosine over the budget (the same
     progress measure as gamma's anneal); None keeps Table V's constant rate."""
     buffer_size: int = 100_000
+    """Replay buffer capacity in transitions (Table V)."""
     gamma: float = 0.99
     """Discount factor; with ``gamma_start`` set it is annealed from gamma_start to this value."""
     gamma_start: float | None = None
     """If set, gamma rises linearly from this value to ``gamma`` over the first half of the budget."""
     polyak: float = 0.995
+    """Target networks move by (1 - polyak) towards the trained ones every update (Table V)."""
     hidden: tuple[int, ...] = (256, 256, 256)
+    """Hidden layer widths of the actor and critic MLPs (Table V: three layers of 256)."""
     max_episode_steps: int = 300
+    """Episode length in control steps (Table V)."""
     # -- another env (e.g. the toy system, safemanip.toy)
     env: str = DEFAULT_ENV
     """A name in the closed env registry ``safemanip.rl.envs.ENVS`` ('slide-out' or
@@ -84,6 +93,7 @@ class TrainConfig:
     """Std of the target-policy smoothing noise (0 disables it). Small on purpose: placing the box needs
     |a| < 0.03 (5 cm/s of 1.7 m/s), and TD3's usual 0.2 averages the value of that tiny stopping set away."""
     target_noise_clip: float = 0.05
+    """The target-policy smoothing noise is clipped to this."""
     policy_delay: int = 2
     """Actor and target networks are updated every this many critic updates."""
     actor_preactivation_penalty: float = 0.0
@@ -112,6 +122,7 @@ class TrainConfig:
     n_collectors: int = 1
     """Rollout worker processes (each simulates ``envs_per_collector`` envs round-robin on one core)."""
     envs_per_collector: int = 4
+    """Envs each rollout worker steps round-robin."""
     torch_threads: int = 1
     """Threads for the learner's PyTorch; the collectors use the other core(s)."""
     # -- learner speed, network, selection-aware training, rollout backend
@@ -155,82 +166,44 @@ class TrainConfig:
     a run, its rollout workers or its policy to a remote cluster."""
     # -- evaluation, logging, checkpoints
     eval_every_s: float = 120.0
+    """Seconds between evaluations on held-out seeds."""
     eval_episodes: int = 50
+    """Episodes per evaluation."""
     checkpoint_every_s: float = 120.0
+    """Seconds between checkpoints."""
     log_every_s: float = 10.0
+    """Seconds between logged scalars."""
 
     def __post_init__(self):
         problems = _type_problems(self)
         if problems:  # the range checks below assume the right types
             raise ConfigError("invalid training config:\n  - " + "\n  - ".join(problems))
         self.hidden = tuple(int(h) for h in self.hidden)
-        if self.algorithm not in ("rarl", "vanilla"):
-            problems.append(f"algorithm must be 'rarl' or 'vanilla', got {self.algorithm!r}")
-        if self.constraints not in ("conservative", "all"):
-            problems.append(f"constraints must be 'conservative' or 'all', got {self.constraints!r}")
-        if not 0 <= self.k <= MAX_OBJECTS:
-            problems.append(f"k must be 0..{MAX_OBJECTS}, got {self.k}")
-        if self.near_path_fraction is not None and not 0 <= self.near_path_fraction <= 1:
-            problems.append(f"near_path_fraction must be in [0, 1], got {self.near_path_fraction}")
-        if self.layout not in LAYOUTS:
-            problems.append(f"layout must be one of {', '.join(map(repr, LAYOUTS))}, got {self.layout!r}")
-        elif not self.clear_route and self.layout != "route":
+        # every field's own range and choices, from the one table the command line uses too
+        for name, allowed in FIELD_CHOICES.items():
+            value = getattr(self, name)
+            if value not in allowed and not (name == "device" and str(value).startswith("cuda:")
+                                             and value[len("cuda:"):].isdigit()):
+                problems.append(f"{name} must be one of {', '.join(map(repr, allowed))}, got {value!r}")
+        for name, bounds in FIELD_BOUNDS.items():
+            value = getattr(self, name)
+            if value is not None and not bounds.contains(value):
+                problems.append(f"{name} must be in {bounds}, got {value}")
+        # rules across fields
+        if not self.clear_route and self.layout in LAYOUTS and self.layout != "route":
             problems.append(f"layout {self.layout!r} keeps a route clear: drop clear_route false (the straight "
                             f"layout) or the layout")
-        if not 0 < self.gamma < 1:
-            problems.append(f"gamma must be in (0, 1), got {self.gamma}")
-        if self.gamma_start is not None and not 0 < self.gamma_start <= self.gamma:
+        if self.gamma_start is not None and self.gamma_start > self.gamma:
             problems.append(f"gamma_start must be in (0, gamma], got {self.gamma_start}")
-        if not 0 < self.polyak < 1:
-            problems.append(f"polyak must be in (0, 1), got {self.polyak}")
-        if not 0 < self.learning_rate <= 1:
-            problems.append(f"learning_rate must be in (0, 1], got {self.learning_rate}")
-        if self.learning_rate_final is not None and not 0 < self.learning_rate_final <= self.learning_rate:
+        if self.learning_rate_final is not None and self.learning_rate_final > self.learning_rate:
             problems.append(f"learning_rate_final must be in (0, learning_rate = {self.learning_rate}], "
                             f"got {self.learning_rate_final}")
-        if self.batch_size < 1 or self.buffer_size < self.batch_size:
+        if self.buffer_size < self.batch_size:
             problems.append("batch_size must be >= 1 and buffer_size >= batch_size")
-        for name, hi in LIMITS.items():
-            if getattr(self, name) > hi:
-                problems.append(f"{name} must be at most {hi:,}, got {getattr(self, name):,}")
-        if self.total_env_steps < 1:
-            problems.append(f"total_env_steps must be >= 1, got {self.total_env_steps}")
-        if self.minutes is not None and not 0 < self.minutes <= 60 * 24 * 365:
-            problems.append(f"minutes must be > 0 (or null for no time limit), got {self.minutes}")
-        if self.max_episode_steps < 1:
-            problems.append(f"max_episode_steps must be >= 1, got {self.max_episode_steps}")
         if self.learning_starts < self.batch_size:
             problems.append(f"learning_starts ({self.learning_starts}) must be >= batch_size ({self.batch_size})")
-        if self.embodiment not in EMBODIMENTS:
-            problems.append(f"embodiment must be one of {', '.join(map(repr, sorted(EMBODIMENTS)))}, got "
-                            f"{self.embodiment!r}")
-        if self.random_steps < 0:
-            problems.append(f"random_steps must be >= 0, got {self.random_steps}")
-        if not 0 < self.env_steps_per_update <= 10_000:
-            problems.append(f"env_steps_per_update must be in (0, 10000], got {self.env_steps_per_update}")
-        if self.n_collectors < 1 or self.envs_per_collector < 1:
-            problems.append("n_collectors >= 1 and envs_per_collector >= 1 are required")
-        if not 1.0 <= self.action_curve <= 4.0:
-            problems.append(f"action_curve must be from 1 (linear) to 4, got {self.action_curve}")
-        if self.slot_order not in ("nearest", "index"):
-            problems.append(f"slot_order must be 'nearest' or 'index', got {self.slot_order!r}")
         if not self.hidden or min(self.hidden) < 1 or max(self.hidden) > 4096 or len(self.hidden) > 8:
             problems.append(f"hidden must list 1..8 layer widths in 1..4096, got {list(self.hidden)}")
-        if self.policy_delay < 1 or self.torch_threads < 1:
-            problems.append("policy_delay and torch_threads must be >= 1")
-        if self.exploration_noise < 0 or self.target_noise < 0 or self.target_noise_clip < 0:
-            problems.append("exploration_noise, target_noise and target_noise_clip must be >= 0")
-        if not (math.isfinite(self.actor_preactivation_penalty) and 0 <= self.actor_preactivation_penalty <= 10):
-            problems.append(f"actor_preactivation_penalty must be from 0 (off) to 10, got {self.actor_preactivation_penalty}")
-        if not 0 <= self.noise_color <= 2:
-            problems.append(f"noise_color must be from 0 (white) to 2 (red), got {self.noise_color}")
-        for name in ("eval_every_s", "checkpoint_every_s", "log_every_s"):
-            if not 0 < getattr(self, name) <= 86_400:
-                problems.append(f"{name} must be in (0, 86400] seconds, got {getattr(self, name)}")
-        if not 1 <= self.eval_episodes <= 100_000:
-            problems.append(f"eval_episodes must be 1..100000, got {self.eval_episodes}")
-        if not 0 <= self.seed < 2**32:
-            problems.append(f"seed must be 0..2**32-1, got {self.seed}")
         if not isinstance(self.out_dir, str) or not self.out_dir.strip():
             problems.append("out_dir must be a folder path")
         problems += check_env(self.env, self.extra_env_kwargs)
@@ -243,18 +216,8 @@ class TrainConfig:
             raise ConfigError("invalid training config:\n  - " + "\n  - ".join(problems))
 
     def _learner_problems(self) -> list[str]:
-        """Checks of the learner fields (device, precision, network, selection-aware training, backend)."""
+        """Checks across the learner fields (network, selection-aware training, backend)."""
         problems = []
-        for name, allowed in (("device", ("auto", "cpu", "cuda")), ("precision", ("auto", "bf16", "fp32")),
-                              ("network", ("mlp", "set")), ("selector", ("dynamic-knn", "dynamic-radius", "mixed")),
-                              ("backend", ("local", "ray", "inline"))):
-            value = getattr(self, name)
-            if value not in allowed and not (name == "device" and str(value).startswith("cuda:")
-                                             and value[len("cuda:"):].isdigit()):
-                problems.append(f"{name} must be one of {allowed}, got {value!r}")
-        if self.set_embed < 1 or self.selection_interval < 1 or not 0 < self.selection_radius <= MAX_RADIUS:
-            problems.append(f"set_embed >= 1, selection_interval >= 1 and selection_radius in (0, {MAX_RADIUS}] m "
-                            f"are required")
         if self.scene_objects is not None:
             if not self.k <= self.scene_objects <= MAX_OBJECTS:
                 problems.append(f"scene_objects must be in k..{MAX_OBJECTS} ({self.k}..{MAX_OBJECTS}), "
@@ -387,12 +350,57 @@ NOT_RECORDED = ("address",)
 MAX_CONFIG_BYTES = 1_000_000
 
 
-LIMITS = {"total_env_steps": 10**12, "buffer_size": 10**7, "batch_size": 65_536, "learning_starts": 10**9,
-          "random_steps": 10**12, "max_episode_steps": 100_000, "n_collectors": 64, "envs_per_collector": 256,
-          "torch_threads": 256, "policy_delay": 1_000, "set_embed": 4096, "selection_interval": 100_000}
-"""Upper bounds that keep a typo from allocating terabytes or spawning hundreds of processes."""
 MAX_RADIUS = 10.0
 """Largest selection_radius [m]: the table is about 1.5 m across, so this already means every object."""
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """A field's range: [lo, hi], either end open if so marked."""
+
+    lo: float
+    hi: float
+    lo_open: bool = False
+    hi_open: bool = False
+
+    def contains(self, value) -> bool:
+        return (value > self.lo if self.lo_open else value >= self.lo) and \
+            (value < self.hi if self.hi_open else value <= self.hi)
+
+    def __str__(self) -> str:
+        def number(x: float) -> str:
+            return f"{int(x):,}" if float(x).is_integer() else f"{x:g}"
+        return f"{'(' if self.lo_open else '['}{number(self.lo)}, {number(self.hi)}{')' if self.hi_open else ']'}"
+
+
+FIELD_BOUNDS = {
+    "k": Bounds(0, MAX_OBJECTS), "near_path_fraction": Bounds(0, 1), "action_curve": Bounds(1, 4),
+    "total_env_steps": Bounds(1, 10**12), "minutes": Bounds(0, 60 * 24 * 365, lo_open=True), "seed": Bounds(0, 2**32 - 1),
+    "batch_size": Bounds(1, 65_536), "learning_rate": Bounds(0, 1, lo_open=True),
+    "learning_rate_final": Bounds(0, 1, lo_open=True), "buffer_size": Bounds(1, 10**7),
+    "gamma": Bounds(0, 1, lo_open=True, hi_open=True), "gamma_start": Bounds(0, 1, lo_open=True, hi_open=True),
+    "polyak": Bounds(0, 1, lo_open=True, hi_open=True), "max_episode_steps": Bounds(1, 100_000),
+    "target_noise": Bounds(0, 10), "target_noise_clip": Bounds(0, 10), "policy_delay": Bounds(1, 1_000),
+    "actor_preactivation_penalty": Bounds(0, 10), "exploration_noise": Bounds(0, 10), "noise_color": Bounds(0, 2),
+    "random_steps": Bounds(0, 10**12), "learning_starts": Bounds(1, 10**9),
+    "env_steps_per_update": Bounds(0, 10_000, lo_open=True), "n_collectors": Bounds(1, 64),
+    "envs_per_collector": Bounds(1, 256), "torch_threads": Bounds(1, 256), "set_embed": Bounds(1, 4096),
+    "scene_objects": Bounds(0, MAX_OBJECTS), "scene_objects_min": Bounds(1, MAX_OBJECTS),
+    "selection_radius": Bounds(0, MAX_RADIUS, lo_open=True), "selection_interval": Bounds(1, 100_000),
+    "eval_every_s": Bounds(0, 86_400, lo_open=True), "eval_episodes": Bounds(1, 100_000),
+    "checkpoint_every_s": Bounds(0, 86_400, lo_open=True), "log_every_s": Bounds(0, 86_400, lo_open=True),
+}
+"""Every numeric field's range, in one place: ``TrainConfig`` checks a config against it and ``safemanip train``
+builds its flags' argparse types from it. The upper bounds keep a typo from allocating terabytes or spawning hundreds
+of processes."""
+FIELD_CHOICES = {
+    "algorithm": ("rarl", "vanilla"), "constraints": ("conservative", "all"), "slot_order": ("nearest", "index"),
+    "embodiment": EMBODIMENTS, "layout": LAYOUTS, "device": ("auto", "cpu", "cuda"),
+    "precision": ("auto", "bf16", "fp32"), "network": ("mlp", "set"),
+    "selector": ("dynamic-knn", "dynamic-radius", "mixed"), "backend": ("local", "ray", "inline"),
+}
+"""Every field that names one of a closed set, and the set (the registries themselves for robots and layouts, so a
+registered one is taken everywhere at once)."""
 
 _KINDS = {"int": (int,), "float": (int, float), "str": (str,), "bool": (bool,), "dict": (dict,)}
 
