@@ -213,7 +213,7 @@ def test_evaluate_writes_records_and_summary(tmp_path):
     pol = make_policy(tmp_path / "p.safetensors", 2, goal_seeker=True)
     out = tmp_path / "out"
     report = evaluate(EvalRequest(policy=pol, n_objects=4, selector="static-knn", judge="conservative", episodes=4,
-                                  seed=2, workers=1, out=str(out)))
+                                  seed_block=2, workers=1, out=str(out)))
     recs = read_records(out / "episodes.csv")
     assert [r["seed"] for r in recs] == [200000, 200001, 200002, 200003]
     assert recs == report["records"]  # the CSV alone rebuilds the records

@@ -135,7 +135,7 @@ def test_eval_records_the_open_breaker(capsys, tmp_path):
     out = tmp_path / "ev"
     policy = make_policy(tmp_path / "k2-all.safetensors", 2, constraints="all")
     code = main(["eval", "--policy", policy, "--semantics", "1 fragile, 1 soft, 1 durable", "--selector",
-                 "dynamic-vlm", "--constraints", "vlm", "--vlm-backend", "openai", "--vlm-base-url",
+                 "dynamic-vlm", "--constraint-selector", "vlm", "--vlm-backend", "openai", "--vlm-base-url",
                  "http://127.0.0.1:9/v1", "--vlm-timeout", "0.5", "--vlm-max-failures", "2", "--episodes", "2",
                  "--workers", "1", "--no-progress", "--out", str(out)])
     text = capsys.readouterr().out

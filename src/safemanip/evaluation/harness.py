@@ -41,6 +41,21 @@ from safemanip.util.secrets import mask_url
 JUDGES = {"ground-truth": "ground_truth", "conservative": "conservative"}
 SEED_STRIDE = 100_000
 MAX_EPISODE_STEPS = 100_000
+
+
+def _eval_bounds() -> dict:
+    from safemanip.rl.config import Bounds
+    from safemanip.scene.config import MAX_OBJECTS
+
+    return {"n_objects": Bounds(0, MAX_OBJECTS), "episodes": Bounds(1, SEED_STRIDE),
+            "seed_block": Bounds(0, 2**31 // SEED_STRIDE - 1), "interval": Bounds(1, 100_000),
+            "max_episode_steps": Bounds(1, MAX_EPISODE_STEPS), "gate_share": Bounds(0, 1), "exit_share": Bounds(0, 1),
+            "chunk_size": Bounds(1, 100_000)}
+
+
+EVAL_BOUNDS = _eval_bounds()
+"""The ranges of ``EvalRequest``'s numeric fields: ``prepare`` checks a request against them and ``safemanip eval``
+builds its flags' types from them."""
 METRIC_SELECTORS = ("static-knn", "dynamic-knn", "dynamic-radius", "privileged", "dynamic-vlm")
 
 
@@ -51,23 +66,32 @@ class EvalConfigError(ValueError):
 @dataclass
 class EvalRequest:
     policy: str | None
+    """Policy file (.safetensors), a shipped policy's name, or a training run folder (its policy)."""
     n_objects: int | None = None
-    """Scene size N (default: the number of --semantics classes, else the policy's k)."""
+    """Scene size N (default: the number of semantics classes, else the policy's k)."""
     semantics: str | None = None
     """Classes of the clutter, e.g. '2 fragile, 3 durable' (default: any catalog objects)."""
     selector: str | None = None
     """Object selector (default: 'full' when N == k; required when N != k)."""
-    constraints: str | None = None
-    """Constraint selector (default: conservative for a conservative policy, ground-truth for an 'all' one)."""
+    constraint_selector: str | None = None
+    """Constraint selector: the type each picked object's slot gets (default: conservative for a conservative
+    policy, which always gets no_contact anyway; ground-truth for an 'all' one)."""
     judge: str = "ground-truth"
+    """Failure set over all N objects: each object's catalog class (ground-truth) or every object no_contact
+    (conservative, the paper's F^conser)."""
     episodes: int = 500
-    seed: int = 0
+    """Episodes to run."""
+    seed_block: int = 0
+    """Seed block B: the episodes' seeds are B x 100000 + i, so blocks never overlap."""
     workers: int = 2
     backend: str = "local"
     address: str | None = None
     out: str | None = None
+    """Folder for episodes.csv and summary.json."""
     pad: bool = False
+    """Allow N < k: fill the empty policy slots with far-away dummy objects."""
     interval: int = DEFAULT_INTERVAL
+    """Control steps between re-selections of the dynamic selectors."""
     vlm_backend: str | None = None
     vlm_model: str | None = None
     vlm_base_url: str | None = None
@@ -78,6 +102,7 @@ class EvalRequest:
     vlm_run_budget: float | None = None
     vlm_max_failures: int | None = None
     max_episode_steps: int | None = None
+    """Episode length in control steps (default: the policy's)."""
     layout: str | None = None
     """Scene layout, 'route', 'narrow', 'gate' or 'exit' (``scene.placement.LAYOUTS``; default: the one the policy
     was trained on)."""
@@ -87,10 +112,11 @@ class EvalRequest:
     """Share of exit scenes (default: the layout's). 1 evaluates on exit scenes only."""
     planner: str | None = None
     """Instead of a policy, the privileged planner that keeps clear of 'all' objects or of the 'fragile' ones only:
-    the bound on the same scenes (no --policy then; the scene is the one --layout and the shares describe)."""
+    the bound on the same scenes (no policy then; the scene is the one the layout and the shares describe)."""
     embodiment: str | None = None
     """Robot to evaluate on (default: the one the policy was trained on; another one is refused)."""
     chunk_size: int | None = None
+    """Episodes per worker task (default: about 8 tasks per worker)."""
     progress: bool = False
 
 
@@ -179,7 +205,7 @@ def vlm_option_problems(req, uses_vlm: bool) -> list[str]:
     if given and not uses_vlm:
         flags = ", ".join("--" + f.replace("_", "-") for f in given)
         problems.append(f"{flags} only appl{'ies' if len(given) == 1 else 'y'} to "
-                        f"--selector dynamic-vlm or --constraints vlm")
+                        f"--selector dynamic-vlm or --constraint-selector vlm")
     vlm_backend = req.vlm_backend or "semantic"
     if vlm_backend not in VLM_BACKENDS:
         problems.append(f"--vlm-backend must be one of {VLM_BACKENDS}, got {vlm_backend!r}")
@@ -197,16 +223,13 @@ def prepare(req: EvalRequest) -> Prepared:
 
     problems: list[str] = []
     notes: list[str] = []
-    if req.episodes < 1 or req.episodes > SEED_STRIDE:
-        problems.append(f"--episodes must be 1..{SEED_STRIDE} (seed blocks are {SEED_STRIDE} apart), got {req.episodes}")
-    if req.seed < 0:
-        problems.append(f"--seed must be >= 0, got {req.seed}")
+    for name, bounds in EVAL_BOUNDS.items():
+        value = getattr(req, name)
+        if value is not None and not bounds.contains(value):
+            problems.append(f"--{name.replace('_', '-')} must be in {bounds}, got {value}"
+                            + (f" (seed blocks are {SEED_STRIDE} apart)" if name == "episodes" else ""))
     if req.workers < 1:
         problems.append(f"--workers must be >= 1, got {req.workers}")
-    if req.chunk_size is not None and req.chunk_size < 1:
-        problems.append(f"--chunk-size must be >= 1, got {req.chunk_size}")
-    if req.interval < 1:
-        problems.append(f"--interval must be >= 1 control step, got {req.interval}")
     if req.backend not in BACKENDS:
         problems.append(f"--backend must be one of {BACKENDS}, got {req.backend!r}")
     if req.address and req.backend != "ray":
@@ -223,16 +246,14 @@ def prepare(req: EvalRequest) -> Prepared:
         problems.append(f"unknown --layout {req.layout!r}; choose one of {', '.join(LAYOUTS)}")
     if req.selector is not None and req.selector not in OBJECT_SELECTORS:
         problems.append(f"unknown --selector {req.selector!r}; choose one of {', '.join(sorted(OBJECT_SELECTORS))}")
-    if req.constraints is not None and req.constraints not in CONSTRAINT_SELECTORS:
-        problems.append(f"unknown --constraints {req.constraints!r}; choose one of "
+    if req.constraint_selector is not None and req.constraint_selector not in CONSTRAINT_SELECTORS:
+        problems.append(f"unknown --constraint-selector {req.constraint_selector!r}; choose one of "
                         f"{', '.join(sorted(CONSTRAINT_SELECTORS))}")
     if req.judge not in JUDGES:
         problems.append(f"unknown --judge {req.judge!r}; choose one of {', '.join(JUDGES)}")
-    if req.max_episode_steps is not None and not 1 <= req.max_episode_steps <= MAX_EPISODE_STEPS:
-        problems.append(f"--max-episode-steps must be 1..{MAX_EPISODE_STEPS}, got {req.max_episode_steps}")
     if req.out is not None:
         problems += check_output_dir(req.out)
-    uses_vlm = req.selector in USES_VLM or (req.constraints or "") in USES_VLM
+    uses_vlm = req.selector in USES_VLM or (req.constraint_selector or "") in USES_VLM
     problems += vlm_option_problems(req, uses_vlm)
 
     classes = None
@@ -280,9 +301,9 @@ def prepare(req: EvalRequest) -> Prepared:
         if selector == "full" and n > k:
             problems.append(f"--selector full shows every object, but N={n} > k={k}: pick one of "
                             f"{', '.join(METRIC_SELECTORS)}")
-        if meta["constraints"] == "conservative" and req.constraints not in (None, "conservative"):
-            notes.append(f"the policy was trained conservative: every slot gets no_contact, so --constraints "
-                         f"{req.constraints} does not change its input")
+        if meta["constraints"] == "conservative" and req.constraint_selector not in (None, "conservative"):
+            notes.append(f"the policy was trained conservative: every slot gets no_contact, so --constraint-selector "
+                         f"{req.constraint_selector} does not change its input")
     if problems:
         raise EvalConfigError("cannot run this evaluation:\n  - " + "\n  - ".join(problems))
 
@@ -303,11 +324,11 @@ def prepare(req: EvalRequest) -> Prepared:
                               vlm_cache_only=req.vlm_cache_only, vlm_timeout=req.vlm_timeout,
                               vlm_episode_budget=req.vlm_episode_budget, vlm_run_budget=req.vlm_run_budget,
                               vlm_max_failures=req.vlm_max_failures)
-    constraints = req.constraints or ("conservative" if meta["constraints"] == "conservative" else "ground-truth")
+    constraints = req.constraint_selector or ("conservative" if meta["constraints"] == "conservative" else "ground-truth")
     spec = EvalSpec(actor_arrays=arrays, k=k, policy_constraints=meta["constraints"], env_kwargs=env_kwargs,
                     selector=selector, constraints=constraints, options=options, pad=req.pad,
                     object_size=policy_object_size(meta))
-    seeds = [req.seed * SEED_STRIDE + i for i in range(req.episodes)]
+    seeds = [req.seed_block * SEED_STRIDE + i for i in range(req.episodes)]
     return Prepared(req, spec, meta, seeds, n, notes)
 
 
@@ -321,7 +342,8 @@ def _prepare_planner(req: EvalRequest, problems: list[str], notes: list[str], cl
         problems.append(f"--planner must be one of {', '.join(PLANNER_AVOID)}, got {req.planner!r}")
     if req.policy is not None:
         problems.append("--planner runs the privileged planner instead of a policy: drop --policy")
-    for flag, given in (("--selector", req.selector not in (None, "full")), ("--constraints", req.constraints),
+    for flag, given in (("--selector", req.selector not in (None, "full")),
+                        ("--constraint-selector", req.constraint_selector),
                         ("--pad", req.pad)):
         if given:
             problems.append(f"{flag} does not apply to --planner (it sees every object with its judged constraint)")
@@ -345,7 +367,7 @@ def _prepare_planner(req: EvalRequest, problems: list[str], notes: list[str], cl
     spec = EvalSpec(actor_arrays=[], k=n, policy_constraints="all", env_kwargs=env_kwargs, selector="full",
                     constraints="ground-truth", planner=req.planner)
     meta = {"algorithm": "planner", "k": n, "constraints": "all", "planner": req.planner}
-    seeds = [req.seed * SEED_STRIDE + i for i in range(req.episodes)]
+    seeds = [req.seed_block * SEED_STRIDE + i for i in range(req.episodes)]
     return Prepared(req, spec, meta, seeds, n, notes)
 
 
@@ -423,7 +445,7 @@ def describe(prep: Prepared) -> dict:
                                                          "cache_only": req.vlm_cache_only}
                                                         if spec.selector in USES_VLM or spec.constraints in USES_VLM
                                                         else None),
-            "env_kwargs": spec.env_kwargs, "episodes": len(prep.seeds), "seed": req.seed,
+            "env_kwargs": spec.env_kwargs, "episodes": len(prep.seeds), "seed": req.seed_block,
             "seeds": [prep.seeds[0], prep.seeds[-1]], "backend": req.backend, "workers": req.workers}
 
 

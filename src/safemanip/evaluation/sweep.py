@@ -535,7 +535,7 @@ def _run_cells(cfg, cells, root, status, workers, backend, address, progress, lo
         scenes = dict(cfg.get("scenes") or {})
         if cell.algorithm == "planner":
             req = EvalRequest(policy=None, planner=cell.policy_constraints, n_objects=cell.n_objects,
-                              semantics=cell.semantics, judge=cell.judge, episodes=cell.episodes, seed=cell.seed,
+                              semantics=cell.semantics, judge=cell.judge, episodes=cell.episodes, seed_block=cell.seed,
                               workers=workers, backend=backend, address=address, out=str(cells_dir / cell.id),
                               progress=progress, **scenes)
             if not _evaluate_cell(req, cell, result_path, status, tag, log):
@@ -547,8 +547,8 @@ def _run_cells(cfg, cells, root, status, workers, backend, address, progress, lo
             log(f"{tag}: skipped, no policy file {cell.policy}; make it with:\n    {cell.train_command()}")
             continue
         req = EvalRequest(policy=str(policy), n_objects=cell.n_objects, semantics=cell.semantics,
-                          selector=cell.selector, constraints=cell.constraints, judge=cell.judge,
-                          episodes=cell.episodes, seed=cell.seed, workers=workers, backend=backend,
+                          selector=cell.selector, constraint_selector=cell.constraints, judge=cell.judge,
+                          episodes=cell.episodes, seed_block=cell.seed, workers=workers, backend=backend,
                           address=address, out=str(cells_dir / cell.id), progress=progress,
                           **scenes, **(vlm if cell.vlm else {}))
         try:

@@ -25,8 +25,14 @@ def field_docs(cls: type) -> dict[str, str]:
     return docs
 
 
+ABBREVIATIONS = ("e.g", "i.e", "vs", "cf", "etc")
+
+
 def first_sentence(text: str, limit: int = 200) -> str:
-    """The text up to its first full stop followed by a space (or the end), at most ``limit`` characters."""
+    """The text up to its first full stop followed by a space (or the end; not the stop of an abbreviation such as
+    'e.g.'), at most ``limit`` characters."""
     cut = text.find(". ")
+    while cut >= 0 and text[:cut].lower().endswith(ABBREVIATIONS):
+        cut = text.find(". ", cut + 2)
     sentence = text if cut < 0 else text[:cut + 1]
     return sentence if len(sentence) <= limit else sentence[:limit - 3].rstrip() + "..."
