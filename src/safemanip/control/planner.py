@@ -297,8 +297,8 @@ class GridPlanner:
         space, field = self._space, self._field
         i, j = space.cell(max(x, sx) if pulling else x, y)
         if field is None or not math.isfinite(field[i, j]):  # walled off (or no map)
-            if pulling:  # the pull still has to be fast, or the top box comes along
-                return self._action(np.array([self.pull_speed, 0.0, 0.0]), env)
+            if pulling:  # the pull still has to be fast, or the top box comes along; it still brakes in time
+                return self._action(np.array([self._pull_speed(space, i, j, x), 0.0, 0.0]), env)
             return np.zeros(3, dtype=np.float32)  # no way through what it avoids: it stays put (a timeout)
         ti, tj, top_speed = i, j, self._speed[i, j]
         for _ in range(int(self.lookahead / space.grid)):  # walk down the field
@@ -318,17 +318,21 @@ class GridPlanner:
         if pulling:
             heading[1] = min(max(heading[1], -self.pull_slope * heading[0]), self.pull_slope * heading[0])
             heading[0] = max(heading[0], 1e-3)  # keep pulling outwards, at most pull_angle aside
-            # no faster than lets the box stop before what it avoids straight ahead of the lane, or slow down to a
-            # gentle touch before a soft object there
-            speed = self.pull_speed
-            for ahead_of, end_speed in ((~space.free[i:, j], 0.0), (self._touching[i:, j], self.soft_speed)):
-                blocked = np.flatnonzero(ahead_of)
-                if len(blocked):
-                    ahead = max(space.xs[i + blocked[0]] - x - self.stop_margin, 0.0)
-                    speed = min(speed, math.sqrt(end_speed ** 2 + 2 * self.pull_braking * ahead))
+            speed = self._pull_speed(space, i, j, x)
             return self._action(np.array([*(heading / np.linalg.norm(heading) * speed), 0.0]), env)
         speed = min(top_speed, math.sqrt(2 * self.braking * to_goal) + 0.05)
         return self._action(np.array([*(heading / norm * speed), 0.0]), env)
+
+    def _pull_speed(self, space: "FreeSpace", i: int, j: int, x: float) -> float:
+        """The pull's speed: ``pull_speed``, but no faster than lets the box stop before what it avoids straight ahead
+        of the lane (from cell (i, j) on), or slow down to a gentle touch before a soft object there."""
+        speed = self.pull_speed
+        for ahead_of, end_speed in ((~space.free[i:, j], 0.0), (self._touching[i:, j], self.soft_speed)):
+            blocked = np.flatnonzero(ahead_of)
+            if len(blocked):
+                ahead = max(space.xs[i + blocked[0]] - x - self.stop_margin, 0.0)
+                speed = min(speed, math.sqrt(end_speed ** 2 + 2 * self.pull_braking * ahead))
+        return speed
 
     @staticmethod
     def _action(velocity: np.ndarray, env) -> np.ndarray:

@@ -377,8 +377,8 @@ def cells_of(cfg: dict, episodes: int | None = None, vlm: dict | None = None) ->
                     out.setdefault(cell.id, cell)
     sizes = sorted({int(n) for e in cfg["policies"] for n in (e.get("n_objects", cfg["n_objects"]) if isinstance(e, dict)
                                                                else cfg["n_objects"])})
-    all_semantics = list(dict.fromkeys(cfg.get("semantics", [None]) + [s for e in cfg["policies"] if isinstance(e, dict)
-                                                                       for s in e.get("semantics", [])]))
+    own = [s for e in cfg["policies"] if isinstance(e, dict) for s in e.get("semantics", [])]
+    all_semantics = list(dict.fromkeys(cfg.get("semantics", [] if own else [None]) + own))
     for avoid in cfg.get("bounds", []):  # the planner on the very same scenes (same seeds), once per scene setting
         for n in sizes:
             for sem in all_semantics:
