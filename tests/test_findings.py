@@ -1,0 +1,38 @@
+"""The verdict rules of results/findings.py: a method is better only if its pooled interval and its worst training
+seed both clear the other's; a finding holds only if its method wins somewhere and loses nowhere."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+spec = importlib.util.spec_from_file_location("findings", Path(__file__).parents[1] / "results" / "findings.py")
+findings = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(findings)
+
+
+def method(rate, lo, hi, spread=None):
+    e = {"rate": rate, "ci95": [lo, hi], "count": 0}
+    if spread:
+        e.update(spread=list(spread), seeds=3)
+    return {"summary": {"success": e, "categories": {"top_box": e}, "seeds": [0, 1, 2] if spread else [0]}, "cell": {}}
+
+
+def test_a_method_is_better_only_when_interval_and_seeds_both_clear():
+    high = method(0.8, 0.77, 0.83, (0.75, 0.85))
+    low = method(0.5, 0.47, 0.53, (0.45, 0.55))
+    assert findings.compare(high, low) == "win" and findings.compare(low, high) == "loss"
+    overlapping_seeds = method(0.8, 0.77, 0.83, (0.5, 0.95))  # one seed as bad as the other method's best
+    assert findings.compare(overlapping_seeds, low) == "tie"
+    close = method(0.52, 0.49, 0.55, (0.50, 0.54))
+    assert findings.compare(close, low) == "tie"
+    assert findings.compare(low, high, "top_box", lower_is_better=True) == "win"  # fewer violations is better
+
+
+def test_verdicts():
+    assert findings.verdict(["win", "tie"], True).startswith("holds")
+    assert findings.verdict(["tie", "tie"], True).startswith("within the interval")
+    assert findings.verdict(["loss", "tie"], True).startswith("does not hold")
+    assert findings.verdict(["win", "loss"], True).startswith("mixed")
+    assert findings.verdict([], True) == "not measured yet"
+    assert "fewer than 3 training seeds" in findings.verdict(["win"], False)
