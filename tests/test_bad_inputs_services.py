@@ -363,7 +363,7 @@ def test_a_killed_eval_worker_loses_no_finished_episode(tmp_path):
     scratch = tmp_path / "tmp"
     scratch.mkdir()
     out = tmp_path / "ev"
-    proc = subprocess.Popen([sys.executable, "-m", "safemanip.cli", "eval", "--policy", "rarl-k2-conservative",
+    proc = subprocess.Popen([sys.executable, "-m", "safemanip.cli", "eval", "--policy", "rarl-k2-conservative-s0",
                              "--episodes", "400", "--workers", "2", "--chunk-size", "200", "--no-progress", "--out", out],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
                             env={**ENV, "TMPDIR": str(scratch)}, start_new_session=True)
