@@ -289,6 +289,8 @@ def test_resume_of_a_copied_run_after_a_crash_between_renames(tmp_path):
     os.replace(copy / "checkpoint", copy / "checkpoint.new")
     with open(copy / "scalars.csv", "a", newline="") as f:
         csv.writer(f).writerow(["999.0", meta["env_steps"] + 10**6, 0, "ghost", "1"])
+    config = json.loads((copy / "config.json").read_text())  # a budget may change on resume: a short one
+    (copy / "config.json").write_text(json.dumps({**config, "total_env_steps": meta["env_steps"] + 2000}))
     before = sorted(p.name for p in run.iterdir())
     done = subprocess.run([sys.executable, "-m", "safemanip.cli", "train", "--resume", str(copy), "--no-progress"],
                           capture_output=True, text=True, timeout=180, env=ENV)
