@@ -6,13 +6,14 @@ Nothing holds the box but those contacts, so the hand cannot lift it, cannot pre
 with more than the pads' spring force, and loses it if it asks for more friction than the pads give.
 
 * Each pad sits on a vertical slide at its fingertip with a soft spring preloaded far beyond its travel: a
-  nearly constant force, 13-18 N per pad over its 25 mm travel, 15 N (30 N for the two) at the nominal press.
+  nearly constant force, 8-13 N per pad over its 25 mm travel, 10 N (20 N for the two) at the nominal press.
   It stands in for the Panda pressing down under Cartesian force/impedance control in z: the arm itself is
   velocity-servoed and as stiff as a vice, so without it every millimetre of height error would be tens of
   newtons (the welded box of earlier versions was pressed into the table with up to 205 N).
-* Rubber on cardboard, friction ``PAD_FRICTION`` = 0.9: the pads can pull with up to ~27 N before they
-  slip. Pulling the box out at the Panda's 13 m/s^2 needs ~16 N (its inertia, the table's friction under
-  the pressed box and the top box's drag).
+* Rubber on cardboard, friction ``PAD_FRICTION`` = 0.9: the pads can pull with up to ~18 N before they
+  slip. Pulling the box out as fast as the arm's joints allow (about 7 m/s^2) needs ~11 N: its inertia, the
+  table's friction under the pressed box and the top box's drag. Pressing harder would tip the box over when it
+  is dragged from its top, the pads being near its front edge.
 
 Judging: MuJoCo's box-box collider misses some edge-to-edge pairs closer than the contact gap (seen at
 1.2 mm with a 1 cm gap; 47 of 3000 random box-box poses within the gap reported no contact), while its
@@ -42,9 +43,9 @@ PAD_FRICTION = 0.9
 PAD_STIFFNESS = 200.0
 """Spring stiffness of each pad's slide [N/m]: soft, so that the force hardly depends on the hand's height."""
 PAD_PRELOAD = 0.040
-"""Spring preload [m]: each fully extended pad already pushes with PAD_STIFFNESS * PAD_PRELOAD = 13 N."""
+"""Spring preload [m]: each fully extended pad already pushes with PAD_STIFFNESS * PAD_PRELOAD = 8 N."""
 PAD_PRESS = 0.010
-"""How far each pad is pushed in at the nominal press [m]: 15 N per pad, 30 N in all."""
+"""How far each pad is pushed in at the nominal press [m]: 10 N per pad, 20 N in all."""
 PAD_TRAVEL = 0.025
 """Range of each pad's slide [m]; pushed in further, a pad bottoms out on its finger."""
 PAD_CLEARANCE = 0.002
