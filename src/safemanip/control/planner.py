@@ -11,6 +11,11 @@ goal region a geodesic distance field is spread over the free points (8-connecte
 the box heads for the point a few centimetres down that field, at a speed that lets it brake to rest
 in the goal; close to the goal it approaches exponentially and settles. It ignores the arm's links
 above the box; the env still judges them.
+
+The pull goes straight out of the lane (heading aside slows the arm and drags the top box along) and brakes in
+time for whatever stands straight ahead of it, as an exit scene asks. ``avoid="fragile"`` maps only the objects the
+episode's constraints make ``no_contact`` and drives through the others, slowly through soft ones: the bound of a
+policy that knows which objects it may touch. Where its map is walled off the planner stays put (a timeout).
 """
 
 from __future__ import annotations
@@ -224,9 +229,10 @@ class GridPlanner:
     ``penalties`` each): the path keeps to open space and squeezes through a gap only when it must. Each
     control step the box heads for the point ``lookahead`` down the field, at the top speed its room
     allows (``speeds``), braking at ``braking`` into the goal; close to the goal centre it settles. The
-    pull heads for the same point at ``pull_speed``, so the box is already turning when it leaves the
-    lane. Speeds are in m/s, commanded as actions through the env's action curve; the env's Cartesian
-    speed and acceleration limits apply on top, as for any policy.
+    pull heads straight out at ``pull_speed`` (at most ``pull_angle`` aside), no faster than lets it stop
+    ``stop_margin`` short of what it avoids straight ahead at ``pull_braking``, or touch a soft object there at
+    ``soft_speed``. Speeds are in m/s, commanded as actions through the env's action curve; the env's Cartesian
+    speed and acceleration limits and the arm's joint limits apply on top, as for any policy.
     """
 
     def __init__(self, pull_speed: float = 1.3, clearances: tuple[float, ...] = (0.06, 0.04, 0.02, 0.0),
@@ -240,7 +246,10 @@ class GridPlanner:
         planned into the goal [m/s^2]; ``lookahead``: how far down the path the box heads [m];
         ``settle_time``: the time constant of the final approach to the goal centre [s]; ``pull_angle``: how
         far aside the pull may head [deg]: heading aside asks the shoulder and elbow, the joints that accelerate
-        least, to move, which slows the whole pull, and at 10 deg the top box already comes along."""
+        least, to move, which slows the whole pull, and at 10 deg the top box already comes along; ``avoid``: 'all'
+        objects or only the 'fragile' (``no_contact``) ones (``PLANNER_AVOID``); ``pull_braking``: the deceleration
+        [m/s^2] the pull plans with before an obstacle straight ahead, ``stop_margin`` [m] short of it;
+        ``soft_speed``: the speed [m/s] at which the box may touch a soft object."""
         if not (len(speeds) == len(penalties) == len(clearances)) or list(clearances) != sorted(clearances, reverse=True):
             raise ValueError("clearances must be widest first, with one speed and one penalty each")
         if avoid not in PLANNER_AVOID:
