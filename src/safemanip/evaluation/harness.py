@@ -23,11 +23,12 @@ import math
 import signal
 import time
 from collections import Counter
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
 
+from safemanip.env.config import EnvConfig
 from safemanip.evaluation.episode import CATEGORIES, CATEGORY_LABELS, SAFETY_VIOLATIONS
 from safemanip.evaluation.parallel import BACKENDS, EvalSpec, PartialRun, WorkerFailure, run_episodes
 from safemanip.evaluation.stats import rate_line, wilson_interval
@@ -309,16 +310,19 @@ def prepare(req: EvalRequest) -> Prepared:
 
     from safemanip.rl.checkpoint import policy_action_curve, policy_object_size
 
-    env_train = meta["env_kwargs"]
-    if req.layout is None:  # the policy's own scenes
-        layout = {"near_path_fraction": env_train.get("near_path_fraction", 0.5),
-                  "clear_route": env_train.get("clear_route", True), "layout": env_train.get("layout", "route")}
-    else:  # another layout, with its own share of objects beside the route
-        layout = {"near_path_fraction": None, "clear_route": True, "layout": req.layout}
-    layout.update(gate_share=req.gate_share, exit_share=req.exit_share)
-    env_kwargs = {"n_objects": n, "classes": classes, "constraints": JUDGES[req.judge], **layout,
-                  "max_episode_steps": req.max_episode_steps or env_train.get("max_episode_steps", 300),
-                  "embodiment": env_train["embodiment"], "action_curve": policy_action_curve(meta)}
+    # the policy's own env settings, with what this evaluation changes: the scene size and classes, the judge's
+    # constraint types, and (if asked) another layout with its own share of objects beside the route
+    try:
+        trained = EnvConfig.from_kwargs({**meta["env_kwargs"], "constraints": JUDGES[req.judge]},
+                                        f"--policy {req.policy}: its env_kwargs")
+        elsewhere = {} if req.layout is None else {"near_path_fraction": None, "clear_route": True,
+                                                   "layout": req.layout}
+        env_kwargs = replace(trained, n_objects=n, classes=tuple(classes) if classes else None,
+                             gate_share=req.gate_share, exit_share=req.exit_share,
+                             max_episode_steps=req.max_episode_steps or trained.max_episode_steps,
+                             action_curve=policy_action_curve(meta), **elsewhere).kwargs()
+    except ValueError as err:
+        raise EvalConfigError(f"cannot run this evaluation:\n  - {err}") from None
     options = SelectorOptions(interval=req.interval, vlm_backend=req.vlm_backend or "semantic", vlm_model=req.vlm_model,
                               vlm_base_url=req.vlm_base_url, vlm_cache=req.vlm_cache,
                               vlm_cache_only=req.vlm_cache_only, vlm_timeout=req.vlm_timeout,
@@ -361,9 +365,10 @@ def _prepare_planner(req: EvalRequest, problems: list[str], notes: list[str], cl
         problems.append(f"--n-objects must be 0..{MAX_OBJECTS}, got {n}")
     if problems:
         raise EvalConfigError("cannot run this evaluation:\n  - " + "\n  - ".join(problems))
-    env_kwargs = {"n_objects": n, "classes": classes, "constraints": JUDGES[req.judge], "near_path_fraction": None,
-                  "clear_route": True, "layout": layout, "gate_share": req.gate_share, "exit_share": req.exit_share,
-                  "max_episode_steps": req.max_episode_steps or 300, "embodiment": req.embodiment or "panda"}
+    env_kwargs = EnvConfig(n_objects=n, classes=tuple(classes) if classes else None, constraints=JUDGES[req.judge],
+                           layout=layout, gate_share=req.gate_share, exit_share=req.exit_share,
+                           max_episode_steps=req.max_episode_steps or 300,
+                           embodiment=req.embodiment or "panda").kwargs()
     spec = EvalSpec(actor_arrays=[], k=n, policy_constraints="all", env_kwargs=env_kwargs, selector="full",
                     constraints="ground-truth", planner=req.planner)
     meta = {"algorithm": "planner", "k": n, "constraints": "all", "planner": req.planner}

@@ -7,6 +7,7 @@ import math
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
+from safemanip.env.config import EnvConfig
 from safemanip.rl.envs import DEFAULT_ENV, ENVS, LEGACY_FACTORIES, SELECTED_ENV, check_env
 from safemanip.scene.config import MAX_OBJECTS
 from safemanip.scene.embodiment import EMBODIMENTS
@@ -265,13 +266,14 @@ class TrainConfig:
 
     @property
     def env_kwargs(self) -> dict:
+        """The training env's settings (``env.config.EnvConfig``), recorded in the policy's metadata."""
         if self.env != DEFAULT_ENV:
             return {"env": self.env, **self.extra_env_kwargs}
-        return {"n_objects": self.k, "constraints": "random" if self.constraints == "all" else "conservative",
-                "near_path_fraction": self.near_path_fraction, "clear_route": self.clear_route, "layout": self.layout,
-                "max_episode_steps": self.max_episode_steps,
-                "slot_order": self.slot_order, "embodiment": self.embodiment, "action_curve": self.action_curve,
-                "object_size": self.object_size}
+        return EnvConfig(n_objects=self.k, constraints="random" if self.constraints == "all" else "conservative",
+                         near_path_fraction=self.near_path_fraction, clear_route=self.clear_route, layout=self.layout,
+                         max_episode_steps=self.max_episode_steps, slot_order=self.slot_order,
+                         embodiment=self.embodiment, action_curve=self.action_curve,
+                         object_size=self.object_size).kwargs()
 
     def learning_rate_at(self, progress: float) -> float:
         if self.learning_rate_final is None:
