@@ -187,14 +187,26 @@ def table() -> str:
     return "\n".join(lines)
 
 
-def main() -> None:
-    text = DOC.read_text()
-    block = f"<!-- findings -->\n{table()}\n<!-- /findings -->"
-    text, n = re.subn(r"<!-- findings -->.*?<!-- /findings -->", block, text, flags=re.S)
+def status() -> str:
+    """Which of the benchmark's policies are in (``src/safemanip/policies``), from the queue's own list of runs."""
+    wanted = 54  # results/training/train.sh: 18 settings (RARL and Vanilla k = 1..6, selection-aware k = 2..5, pi_2^all and
+    # pi_3^all) x training seeds 0, 1, 2
+    have = sorted(p.stem for p in (ROOT / "src" / "safemanip" / "policies").glob("*-s[0-9].safetensors"))
+    return (f"{len(have)} of {wanted} policies trained and brought in: " + ", ".join(f"`{h}`" for h in have) + ".")
+
+
+def rewrite(text: str, marker: str, body: str) -> str:
+    block = f"<!-- {marker} -->\n{body}\n<!-- /{marker} -->"
+    text, n = re.subn(rf"<!-- {marker} -->.*?<!-- /{marker} -->", block, text, flags=re.S)
     if n != 1:
-        raise SystemExit(f"{DOC} has no <!-- findings --> ... <!-- /findings --> block to rewrite")
+        raise SystemExit(f"{DOC} has no <!-- {marker} --> ... <!-- /{marker} --> block to rewrite")
+    return text
+
+
+def main() -> None:
+    text = rewrite(rewrite(DOC.read_text(), "status", status()), "findings", table())
     DOC.write_text(text)
-    print(block)
+    print(text[text.index("<!-- status -->"):])
 
 
 if __name__ == "__main__":
