@@ -63,8 +63,8 @@ SCENE_KEYS = {"layout": str, "gate_share": float, "exit_share": float}
 """What a sweep's ``scenes`` may set: the layout and the shares of gate and exit scenes (``scene.config.SceneConfig``)."""
 FIGURES = ("fig4", "fig5", "fig6", "table")
 DEFAULT_ROOT = Path("results")
-RECIPE = ("--object-size --action-curve 2 --gamma 0.98 --gamma-start 0.9 --learning-rate-final 1e-4 --precision bf16 "
-          "--total-env-steps 400000 --minutes 240")
+RECIPE = ("--object-size --action-curve 2 --gamma 0.98 --gamma-start 0.9 --learning-rate-final 1e-4 "
+          "--actor-preactivation-penalty 1e-3 --precision bf16 --total-env-steps 400000 --minutes 240")
 """Flags every benchmark policy was trained with (``results/training/train.sh``; each file's metadata holds its full
 config): the same budget of 400k environment steps (100k updates) for every method. The shipped file is whichever
 of the run's final policy and its ``best.safetensors`` scored higher on seed block 30."""
