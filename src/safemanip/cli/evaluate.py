@@ -117,7 +117,7 @@ def register(subparsers) -> None:
     sw = subparsers.add_parser("sweep", help="run a named experiment grid (resumable) and draw its figure/table",
                                epilog=SWEEP_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     sw.add_argument("name", nargs="?", help="a shipped sweep (fig5, fig6, table1, ...) or a sweep .json file")
-    sw.add_argument("--episodes", type=int_in(1, SEED_STRIDE), help="episodes per cell (default: the sweep's, 2000 for the figures)")
+    sw.add_argument("--episodes", type=int_in(1, SEED_STRIDE), help="episodes per cell and training seed (default: the sweep's own, 1000 for the shipped ones)")
     sw.add_argument("--out", help="results folder (default: results/FOLDER, the sweep's own)")
     sw.add_argument("--render-only", action="store_true", help="only redraw figure and table from stored results")
     sw.add_argument("--list", action="store_true", help="list the shipped sweeps")
