@@ -8,7 +8,7 @@
 # never recovered, 0 % success at 83k updates; the penalty is negligible for |u| < 1.
 #
 # Each run stops at 400k environment steps (100k learner updates: the data rate is held at 4 steps per update),
-# the same budget for every method; --minutes only guards against a stalled run. A finished run is skipped, an
+# the same budget for every method; --minutes only guards against a stalled run. A finished or promoted run is skipped, an
 # interrupted one resumed from its newest checkpoint. The queue goes by finding, not by seed: the four policies
 # of Tables I and II come first with all three seeds (findings 4 and 5 are judged over three seeds), then Fig. 4's
 # RARL and Vanilla-RL at k = 1..6, then the selection-aware policies of Fig. 5, so a partial queue completes
@@ -24,6 +24,8 @@ COMMON=(--object-size --action-curve 2 --gamma 0.98 --gamma-start 0.9 --learning
 run() {  # run NAME FLAGS...
   local name=$1; shift
   local out="$RUNS/$name"
+  # a promoted policy is the record of a finished run (its runs folder may be gone, e.g. on another machine)
+  if [ -f "src/safemanip/policies/$name.safetensors" ]; then return; fi
   if [ -f "$out/summary.json" ] && python3 -c "import json, sys; s = json.load(open(sys.argv[1]))
 sys.exit(0 if s['interrupted'] is None and s['env_steps'] >= 400000 else 1)" "$out/summary.json"; then return; fi
   if [ -f "$out/checkpoint/meta.json" ]; then
