@@ -42,6 +42,9 @@ EVENTS = ("running", "success", "failure:dyn", "failure:hard", "failure:soft", "
 LIFT_BAND = 0.5 * PAD_PRESS  # the hand may rise this far above the nominal press [m]: the pads, half out, still
 # press with 18 N (20 N at the nominal press), so the action's z only trims the pressing force and never lets go
 HEIGHT_GAIN = 0.5  # share of the hand's height error corrected per step: a full correction overshoots and rings
+HOLD_GAIN = 0.5  # share of the hand's horizontal error from its hold point corrected per step (as for the height)
+HOLD_RADIUS = 0.005  # the hold point stays this close to the hand [m]: when the arm's limits or a contact hold the
+# hand back, the hold point does not run ahead of it (no wind-up); the correction is at most 5 cm/s
 RESTING_TOLERANCE = 0.002  # success needs the held box on the table: its bottom face at most this high [m]
 
 
@@ -177,6 +180,7 @@ class SlideOutEnv(gym.Env):
         self._read_state()
         self._lift_band = (self._values[2], self._values[2] + LIFT_BAND)
         self._height = self._values[2]  # the commanded height of the end-effector
+        self._hold = self._values[:2]  # where the end-effector should be in the horizontal plane (x, y)
         if not math.isfinite(sum(self._values)):
             raise RuntimeError("the scene is not finite right after reset: the model or the placement is broken")
         terms = self._margins()
@@ -196,8 +200,22 @@ class SlideOutEnv(gym.Env):
         # pads' push makes the velocity-servoed arm drift up by a few mm otherwise)
         self._height = min(max(self._height + request[2] * CONTROL_DT, z_low), z_high)
         request[2] = HEIGHT_GAIN * (self._height - self._values[2]) / CONTROL_DT
+        # the horizontal hold: the velocity-servoed arm lags its set-points under load (gravity, the pads, the
+        # table's friction on the box), so a zero command alone let the hand creep by about 1 cm/s. As a real
+        # arm's Cartesian velocity interface integrates its command into a pose it holds, the hold point moves
+        # with the command sent and the hand is pulled towards it.
+        (x, y), (hold_x, hold_y) = self._values[:2], self._hold
+        error_x, error_y = hold_x - x, hold_y - y
+        error = math.hypot(error_x, error_y)
+        if error > HOLD_RADIUS:
+            error_x, error_y = error_x * HOLD_RADIUS / error, error_y * HOLD_RADIUS / error
+        correction_x, correction_y = HOLD_GAIN * error_x / CONTROL_DT, HOLD_GAIN * error_y / CONTROL_DT
+        request[0] += correction_x
+        request[1] += correction_y
         command = limit_ee_velocity(request, self._command, CONTROL_DT, self.max_speed, self.max_accel)
         self._command = command
+        self._hold = [x + error_x + (float(command[0]) - correction_x) * CONTROL_DT,
+                      y + error_y + (float(command[1]) - correction_y) * CONTROL_DT]
         m, d = self.model, self.data
         self.robot.command_velocity(m, d, self.binding, command, CONTROL_DT)
         time_before = d.time
