@@ -192,6 +192,8 @@ def status() -> str:
     wanted = 54  # results/training/train.sh: 18 settings (RARL and Vanilla k = 1..6, selection-aware k = 2..5, pi_2^all and
     # pi_3^all) x training seeds 0, 1, 2
     have = sorted(p.stem for p in (ROOT / "src" / "safemanip" / "policies").glob("*-s[0-9].safetensors"))
+    if not have:
+        return f"0 of {wanted} policies trained and brought in."
     return (f"{len(have)} of {wanted} policies trained and brought in: " + ", ".join(f"`{h}`" for h in have) + ".")
 
 
