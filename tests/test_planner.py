@@ -142,6 +142,23 @@ def test_a_walled_off_scene_is_reported_and_the_pull_still_leaves_the_top_box_in
 
 
 @pytest.mark.slow
+def test_the_walled_off_planner_waits_out_a_gate_scene_without_touching_anything():
+    """Avoiding everything, a gate scene is closed: the planner pulls, stops and stays put until the time-out. It used
+    to drift into a fragile object beside the lane (the arm crept under zero actions) in a quarter of such scenes;
+    seed 9700002 was one of them."""
+    env = SlideOutEnv(n_objects=5, classes=["fragile"] * 3 + ["durable"] * 2, layout="gate", gate_share=1.0)
+    planner = GridPlanner(avoid="all")
+    for seed in (9700002, 9700000, 9700004):
+        _, info = env.reset(seed=seed)
+        planner.reset(env)
+        assert planner.clearance is None, "a gate scene is closed to a planner that avoids everything"
+        terminated = truncated = False
+        while not (terminated or truncated):
+            _, _, terminated, truncated, info = env.step(planner.act(info, env))
+        assert info["event"] == "timeout", (seed, info["event"], info.get("object"))
+
+
+@pytest.mark.slow
 def test_every_route_scene_is_open_for_the_arm_and_the_straight_layout_walls_most_off():
     """The route layouts keep a route clear (``scene.placement.sample_route``): the arm can carry the box to the
     goal in every scene, at every N, also in the narrow channel. The old straight-corridor layout (``clear_route=False``) stays available and
