@@ -113,8 +113,10 @@ def finding_fig5_selectors() -> tuple[str, str, str]:
 
 
 def finding_fig5_full_state() -> tuple[str, str, str]:
-    policies, _ = pooled("exit/fig5")
+    policies, bounds = pooled("exit/fig5")
     parts, outcomes, complete = [], [], True
+    bound = ", ".join(f"N={r['cell']['n_objects']}: {pct(r)}" for r in sorted(bounds, key=lambda r: r["cell"]["n_objects"])
+                      if r["cell"]["n_objects"] in (5, 6))
     for n in (5, 6):
         full = pick(policies, k=n, n_objects=n, variant="")
         if full is None:
@@ -128,7 +130,7 @@ def finding_fig5_full_state() -> tuple[str, str, str]:
                 outcome = compare(small, full)
                 outcomes.append("loss" if outcome == "loss" else "win" if outcome == "win" else "tie")
                 parts.append(f"N={n}: π_{k}{' sel.-aware' if variant else ''} {pct(small)} vs π_{n} {pct(full)}")
-    return "; ".join(parts) or "not measured yet", "", verdict(outcomes, complete)
+    return "; ".join(parts) or "not measured yet", bound, verdict(outcomes, complete)
 
 
 def finding_table1() -> tuple[str, str, str]:
