@@ -9,11 +9,12 @@
 #
 # Each run stops at 400k environment steps (100k learner updates: the data rate is held at 4 steps per update),
 # the same budget for every method; --minutes only guards against a stalled run. A finished or promoted run is skipped, an
-# interrupted one resumed from its newest checkpoint. The queue goes by finding, not by seed: Table I's pi_2
-# comes first with all three seeds, then Table II's two (findings 4 and 5 are judged over three seeds), then Fig. 4's
-# RARL and Vanilla-RL at k = 1..6, then the selection-aware policies of Fig. 5, so a partial queue completes
-# whole findings. The finished policies go to src/safemanip/policies/ (results/training/promote.py), their
-# training records to results/training/NAME/.
+# interrupted one resumed from its newest checkpoint. The queue goes by finding, not by seed, so a partial queue
+# completes whole findings (each is judged over three seeds): Table I's pi_2 first, then Table II's two (findings 4
+# and 5), then pi_3..pi_6 conservative (with pi_2, the paper's way of Figs. 5 and 6: findings 2 and 3), then the
+# selection-aware policies of Fig. 5, then Fig. 4's RARL at k = 1 and Vanilla-RL at k = 1..6 (finding 1). The
+# finished policies go to src/safemanip/policies/ (results/training/promote.py), their training records to
+# results/training/NAME/.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 RUNS=${1:-runs/bench}
@@ -43,20 +44,20 @@ for seed in "${SEEDS[@]}"; do  # Table II (finding 5): pi_2^all and pi_3^all
   run "rarl-k2-all-s$seed" --algorithm rarl --k 2 --constraints all --layout gate --seed "$seed"
   run "rarl-k3-all-s$seed" --algorithm rarl --k 3 --constraints all --layout gate --seed "$seed"
 done
-for seed in "${SEEDS[@]}"; do  # the k = 3 point of Figs. 4 and 5
-  run "rarl-k3-conservative-s$seed" --algorithm rarl --k 3 --constraints conservative --layout exit --seed "$seed"
-done
-for seed in "${SEEDS[@]}"; do  # Fig. 4 (RARL vs Vanilla-RL) and the paper's way of Figs. 5 and 6
-  for k in 1 4 5 6; do
+for seed in "${SEEDS[@]}"; do  # Figs. 5 and 6, the paper's way: pi_3..pi_6 (pi_2 is Table I's)
+  for k in 3 4 5 6; do
     run "rarl-k$k-conservative-s$seed" --algorithm rarl --k "$k" --constraints conservative --layout exit --seed "$seed"
-  done
-  for k in 1 2 3 4 5 6; do
-    run "vanilla-k$k-conservative-s$seed" --algorithm vanilla --k "$k" --constraints conservative --layout exit --seed "$seed"
   done
 done
 for seed in "${SEEDS[@]}"; do  # Fig. 5 selection-aware
   for k in 2 3 4 5; do
     run "rarl-k$k-conservative-selaware-s$seed" --algorithm rarl --k "$k" --constraints conservative --layout exit \
         --scene-objects 6 --scene-objects-min "$k" --selector dynamic-knn --seed "$seed"
+  done
+done
+for seed in "${SEEDS[@]}"; do  # Fig. 4: RARL (k = 2..6 above) against Vanilla-RL
+  run "rarl-k1-conservative-s$seed" --algorithm rarl --k 1 --constraints conservative --layout exit --seed "$seed"
+  for k in 1 2 3 4 5 6; do
+    run "vanilla-k$k-conservative-s$seed" --algorithm vanilla --k "$k" --constraints conservative --layout exit --seed "$seed"
   done
 done
