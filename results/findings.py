@@ -8,7 +8,8 @@ method is better only if both tests agree: its pooled 95 % Wilson interval lies 
 lowest training seed scores at least the other's highest; otherwise the cell is a tie. A finding holds if its
 method wins at least one of its comparisons and loses none; it is within the interval if every comparison is a tie;
 it does not hold if the method loses at least one and wins none; mixed otherwise. A verdict needs three training
-seeds on both sides of every comparison; until then the finding says how many it has.
+seeds on both sides of every comparison and every cell the finding compares in its sweep spec
+(``src/safemanip/evaluation/sweeps/NAME.json``) measured; until then the finding says what it still lacks.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from safemanip.evaluation.sweep import load_results, pool_seeds  # noqa: E402
+from safemanip.evaluation.sweep import Cell, cells_of, load_config, load_results, pool_seeds  # noqa: E402
 
 DOC = ROOT / "docs" / "results.md"
 SEEDS = 3
@@ -63,14 +64,28 @@ def compare(a: dict, b: dict, key: str = "success", lower_is_better: bool = Fals
     return "tie"
 
 
-def verdict(outcomes: list[str], complete: bool) -> str:
+def missing_cells(sweep: str, wanted, results: Path = ROOT / "results") -> tuple[int, int]:
+    """(cells not measured yet, cells in all) among the sweep spec's cells that a finding compares (``wanted(cell)``).
+    Without this a finding whose measured cells all had three seeds would read as complete while whole policies
+    (say pi_4..pi_6) were still missing from it."""
+    cfg = load_config(sweep)
+    stored = {Cell(**r["cell"]).id for r in load_results(results / cfg["folder"])}
+    expected = [c.id for c in cells_of(cfg) if c.algorithm != "planner" and wanted(c)]
+    return sum(1 for c in expected if c not in stored), len(expected)
+
+
+def verdict(outcomes: list[str], complete: bool, missing: tuple[int, int] = (0, 0)) -> str:
     if not outcomes:
         return "not measured yet"
     wins, losses = outcomes.count("win"), outcomes.count("loss")
     text = ("holds" if wins and not losses else "within the interval" if not wins and not losses
             else "does not hold" if losses and not wins else "mixed")
     text += f" ({wins} better, {outcomes.count('tie')} tied, {losses} worse)"
-    return text if complete else f"{text}; fewer than {SEEDS} training seeds so far"
+    if not complete:
+        text += f"; fewer than {SEEDS} training seeds so far"
+    if missing[0]:
+        text += f"; provisional, {missing[1] - missing[0]} of its {missing[1]} cells measured"
+    return text
 
 
 def pct(r: dict | None, key: str = "success") -> str:
@@ -91,7 +106,8 @@ def finding_fig4() -> tuple[str, str, str]:
         outcomes += [compare(rarl, vanilla), compare(rarl, vanilla, "top_box", lower_is_better=True)]
         parts.append(f"N={n}: {pct(rarl)} vs {pct(vanilla)} (top box {pct(rarl, 'top_box')} vs {pct(vanilla, 'top_box')})")
     bound = ", ".join(f"N={r['cell']['n_objects']}: {pct(r)}" for r in sorted(bounds, key=lambda r: r["cell"]["n_objects"]))
-    return "; ".join(parts) or "not measured yet", bound or "", verdict(outcomes, complete)
+    return ("; ".join(parts) or "not measured yet", bound or "",
+            verdict(outcomes, complete, missing_cells("fig4", lambda c: True)))
 
 
 def finding_fig5_selectors() -> tuple[str, str, str]:
@@ -109,7 +125,8 @@ def finding_fig5_selectors() -> tuple[str, str, str]:
         if c["n_objects"] == 6:
             parts.append(f"π_{c['k']}{' selection-aware' if c['variant'] else ''} at N=6: {pct(r)} vs {pct(static)}")
     bound = ", ".join(f"N={r['cell']['n_objects']}: {pct(r)}" for r in sorted(bounds, key=lambda r: r["cell"]["n_objects"]))
-    return "; ".join(parts) or "not measured yet", bound, verdict(outcomes, complete)
+    return ("; ".join(parts) or "not measured yet", bound,
+            verdict(outcomes, complete, missing_cells("fig5", lambda c: c.k < c.n_objects)))
 
 
 def finding_fig5_full_state() -> tuple[str, str, str]:
@@ -130,7 +147,9 @@ def finding_fig5_full_state() -> tuple[str, str, str]:
                 outcome = compare(small, full)
                 outcomes.append("loss" if outcome == "loss" else "win" if outcome == "win" else "tie")
                 parts.append(f"N={n}: π_{k}{' sel.-aware' if variant else ''} {pct(small)} vs π_{n} {pct(full)}")
-    return "; ".join(parts) or "not measured yet", bound, verdict(outcomes, complete)
+    compared = lambda c: c.n_objects in (5, 6) and (  # noqa: E731
+        (c.k == c.n_objects and not c.variant) or (c.k in (2, 4) and c.selector == "dynamic-knn"))
+    return "; ".join(parts) or "not measured yet", bound, verdict(outcomes, complete, missing_cells("fig5", compared))
 
 
 def finding_table1() -> tuple[str, str, str]:
@@ -146,7 +165,9 @@ def finding_table1() -> tuple[str, str, str]:
             outcomes.append(compare(vlm, knn))
             parts.append(f"{semantics}: Dynamic-VLM {pct(vlm)} vs {other} {pct(knn)}")
     bound = "; ".join(f"{r['cell']['semantics']}, avoiding {r['cell']['policy_constraints']}: {pct(r)}" for r in bounds)
-    return "; ".join(parts) or "not measured yet", bound, verdict(outcomes, complete)
+    compared = lambda c: c.selector in ("dynamic-vlm", "dynamic-knn", "static-knn")  # noqa: E731
+    return ("; ".join(parts) or "not measured yet", bound,
+            verdict(outcomes, complete, missing_cells("table1", compared)))
 
 
 def finding_table2() -> tuple[str, str, str]:
@@ -163,7 +184,9 @@ def finding_table2() -> tuple[str, str, str]:
             parts.append(f"π_{k}: {selector} + ConstraintVLM {pct(semantic)} vs dynamic-kNN + conservative "
                          f"{pct(conservative)}")
     bound = "; ".join(f"N={r['cell']['n_objects']}, avoiding {r['cell']['policy_constraints']}: {pct(r)}" for r in bounds)
-    return "; ".join(parts) or "not measured yet", bound, verdict(outcomes, complete)
+    compared = lambda c: c.constraints == "vlm" or (c.selector == "dynamic-knn" and c.constraints == "conservative")  # noqa: E731
+    return ("; ".join(parts) or "not measured yet", bound,
+            verdict(outcomes, complete, missing_cells("table2", compared)))
 
 
 FINDINGS = [

@@ -36,3 +36,21 @@ def test_verdicts():
     assert findings.verdict(["win", "loss"], True).startswith("mixed")
     assert findings.verdict([], True) == "not measured yet"
     assert "fewer than 3 training seeds" in findings.verdict(["win"], False)
+
+
+def test_a_verdict_with_cells_missing_from_its_sweep_says_so():
+    assert "provisional, 7 of its 10 cells measured" in findings.verdict(["win"], True, (3, 10))
+    assert "provisional" not in findings.verdict(["win"], True, (0, 10))
+
+
+def test_missing_cells_counts_the_sweep_spec_cells_without_a_stored_result(tmp_path):
+    def fig5_dynamic_n6(cell):
+        return cell.n_objects == 6 and cell.selector == "dynamic-knn" and cell.k == 2 and not cell.variant
+
+    missing, total = findings.missing_cells("fig5", fig5_dynamic_n6, results=tmp_path)
+    assert (missing, total) == (3, 3)  # pi_2 seeds 0..2, nothing stored under tmp_path
+    stored = findings.ROOT / "results" / "exit" / "fig5" / "cells"
+    name = "rarl-k2-conservative-s1__N6__any__dynamic-knn__conservative__conservative__layout-exit.json"
+    (tmp_path / "exit" / "fig5" / "cells").mkdir(parents=True)
+    (tmp_path / "exit" / "fig5" / "cells" / name).write_bytes((stored / name).read_bytes())
+    assert findings.missing_cells("fig5", fig5_dynamic_n6, results=tmp_path) == (2, 3)
