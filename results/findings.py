@@ -2,6 +2,7 @@
 docs/results.md between its ``<!-- findings -->`` markers, rewritten in place.
 
     python results/findings.py            # after safemanip sweep fig4 / fig5 / table1 / table2
+    python results/findings.py --check    # exit 1 if docs/results.md is out of date with the stored cells
 
 A comparison of two methods in one cell pools each method's training seeds (``evaluation.sweep.pool_seeds``). One
 method is better only if both tests agree: its pooled 95 % Wilson interval lies wholly above the other's, and its
@@ -14,6 +15,7 @@ seeds on both sides of every comparison and every cell the finding compares in i
 
 from __future__ import annotations
 
+import argparse
 import re
 import sys
 from pathlib import Path
@@ -230,11 +232,30 @@ def rewrite(text: str, marker: str, body: str) -> str:
     return text
 
 
-def main() -> None:
-    text = rewrite(rewrite(DOC.read_text(), "status", status()), "findings", table())
-    DOC.write_text(text)
+def render() -> str:
+    """docs/results.md with its status and findings blocks rebuilt from the shipped policies and stored cells."""
+    return rewrite(rewrite(DOC.read_text(), "status", status()), "findings", table())
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--check", action="store_true",
+                        help="write nothing; exit 1 if docs/results.md differs from what the stored cells give")
+    args = parser.parse_args(argv)
+    text = render()
+    if args.check:
+        if text != DOC.read_text():
+            print(f"{DOC} is out of date with the stored cells and policies: run python results/findings.py "
+                  "and commit it", file=sys.stderr)
+            return 1
+        return 0
+    tmp = DOC.with_suffix(".md.tmp")  # atomic: a crash mid-write leaves the old file, not half a table
+    tmp.write_text(text)
+    tmp.replace(DOC)
     print(text[text.index("<!-- status -->"):])
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

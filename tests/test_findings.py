@@ -54,3 +54,18 @@ def test_missing_cells_counts_the_sweep_spec_cells_without_a_stored_result(tmp_p
     (tmp_path / "exit" / "fig5" / "cells").mkdir(parents=True)
     (tmp_path / "exit" / "fig5" / "cells" / name).write_bytes((stored / name).read_bytes())
     assert findings.missing_cells("fig5", fig5_dynamic_n6, results=tmp_path) == (2, 3)
+
+
+def test_docs_results_is_in_step_with_the_stored_cells_and_shipped_policies():
+    # a cell or policy committed without re-running results/findings.py would leave the published verdicts stale
+    assert findings.main(["--check"]) == 0, "run python results/findings.py and commit docs/results.md"
+
+
+def test_check_flags_a_stale_results_page_and_writes_nothing(tmp_path, monkeypatch):
+    stale = tmp_path / "results.md"
+    text = findings.DOC.read_text().replace("<!-- /findings -->", "| 6 | a row no cell gave |\n<!-- /findings -->")
+    stale.write_text(text)
+    monkeypatch.setattr(findings, "DOC", stale)
+    assert findings.main(["--check"]) == 1
+    assert stale.read_text() == text
+    assert findings.main([]) == 0 and "a row no cell gave" not in stale.read_text()
