@@ -69,3 +69,19 @@ def test_check_flags_a_stale_results_page_and_writes_nothing(tmp_path, monkeypat
     assert findings.main(["--check"]) == 1
     assert stale.read_text() == text
     assert findings.main([]) == 0 and "a row no cell gave" not in stale.read_text()
+
+
+def test_full_state_finding_judges_each_way_of_training_pi_k_apart(monkeypatch):
+    def cell(k, n, rate, variant="", selector="dynamic-knn"):
+        r = method(rate, rate - 0.02, rate + 0.02, (rate - 0.01, rate + 0.01))
+        r["cell"] = {"k": k, "n_objects": n, "variant": variant, "selector": "full" if k == n else selector}
+        return r
+
+    policies = [cell(5, 5, 0.90), cell(6, 6, 0.86)]
+    for n in (5, 6):
+        policies += [cell(2, n, 0.70), cell(4, n, 0.88), cell(2, n, 0.86, "selaware"), cell(4, n, 0.95, "selaware")]
+    monkeypatch.setattr(findings, "pooled", lambda folder: (policies, []))
+    monkeypatch.setattr(findings, "missing_cells", lambda sweep, wanted: (0, 10))
+    _, _, text = findings.finding_fig5_full_state()
+    assert text.startswith("the paper's way: does not hold (0 better, 2 tied, 2 worse)")
+    assert "selection-aware: holds (2 better, 2 tied, 0 worse)" in text
