@@ -112,9 +112,20 @@ def finding_fig4() -> tuple[str, str, str]:
             verdict(outcomes, complete, missing_cells("fig4", lambda c: True)))
 
 
+WAYS = (("", "the paper's way"), ("selaware", "selection-aware"))  # how pi_k was trained (the cell's variant)
+
+
+def verdicts_by_way(outcomes: dict[str, list[str]], complete: dict[str, bool], missing: dict[str, tuple[int, int]]) -> str:
+    """One verdict per way of training pi_k: the two need not agree, and one verdict over both would hide which one
+    reproduces the paper."""
+    text = "; ".join(f"{label}: {verdict(outcomes[v], complete[v], missing[v])}" for v, label in WAYS
+                     if outcomes[v] or missing[v][1])  # a way the sweep spec has but no cell measured yet says so
+    return text or verdict([], True)
+
+
 def finding_fig5_selectors() -> tuple[str, str, str]:
     policies, bounds = pooled("exit/fig5")
-    parts, outcomes, complete = [], [], True
+    parts, outcomes, complete = [], {v: [] for v, _ in WAYS}, {v: True for v, _ in WAYS}
     for r in policies:
         c = r["cell"]
         if c["selector"] != "dynamic-knn":
@@ -122,21 +133,19 @@ def finding_fig5_selectors() -> tuple[str, str, str]:
         static = pick(policies, selector="static-knn", k=c["k"], n_objects=c["n_objects"], variant=c["variant"])
         if static is None:
             continue
-        complete &= seeds(r) >= SEEDS and seeds(static) >= SEEDS
-        outcomes.append(compare(r, static))
+        complete[c["variant"]] &= seeds(r) >= SEEDS and seeds(static) >= SEEDS
+        outcomes[c["variant"]].append(compare(r, static))
         if c["n_objects"] == 6:
             parts.append(f"π_{c['k']}{' selection-aware' if c['variant'] else ''} at N=6: {pct(r)} vs {pct(static)}")
     bound = ", ".join(f"N={r['cell']['n_objects']}: {pct(r)}" for r in sorted(bounds, key=lambda r: r["cell"]["n_objects"]))
-    return ("; ".join(parts) or "not measured yet", bound,
-            verdict(outcomes, complete, missing_cells("fig5", lambda c: c.k < c.n_objects)))
+    missing = {v: missing_cells("fig5", lambda c, v=v: c.k < c.n_objects and c.variant == v) for v, _ in WAYS}
+    return "; ".join(parts) or "not measured yet", bound, verdicts_by_way(outcomes, complete, missing)
 
 
 def finding_fig5_full_state() -> tuple[str, str, str]:
-    """pi_2 and pi_4 under dynamic kNN against the full-state policy at N = 5, 6, judged separately for the two ways
-    of training pi_k (the paper's N = k, and selection-aware): they need not agree, and one verdict over both
-    would hide which one reproduces the paper."""
+    """pi_2 and pi_4 under dynamic kNN against the full-state policy (trained the paper's way) at N = 5, 6."""
     policies, bounds = pooled("exit/fig5")
-    parts, by_variant = [], {"": ([], [True]), "selaware": ([], [True])}
+    parts, outcomes, complete = [], {v: [] for v, _ in WAYS}, {v: True for v, _ in WAYS}
     bound = ", ".join(f"N={r['cell']['n_objects']}: {pct(r)}" for r in sorted(bounds, key=lambda r: r["cell"]["n_objects"])
                       if r["cell"]["n_objects"] in (5, 6))
     for n in (5, 6):
@@ -144,22 +153,17 @@ def finding_fig5_full_state() -> tuple[str, str, str]:
         if full is None:
             continue
         for k in (2, 4):
-            for variant, (outcomes, complete) in by_variant.items():
+            for variant, _ in WAYS:
                 small = pick(policies, k=k, n_objects=n, selector="dynamic-knn", variant=variant)
                 if small is None:
                     continue
-                complete[0] &= seeds(small) >= SEEDS and seeds(full) >= SEEDS
-                outcomes.append(compare(small, full))
+                complete[variant] &= seeds(small) >= SEEDS and seeds(full) >= SEEDS
+                outcomes[variant].append(compare(small, full))
                 parts.append(f"N={n}: π_{k}{' sel.-aware' if variant else ''} {pct(small)} vs π_{n} {pct(full)}")
-    compared = lambda c: c.n_objects in (5, 6) and (  # noqa: E731
-        (c.k == c.n_objects and not c.variant) or (c.k in (2, 4) and c.selector == "dynamic-knn"))
-    missing = missing_cells("fig5", compared)
-    verdicts = [f"{label}: {verdict(by_variant[v][0], by_variant[v][1][0])}"
-                for v, label in (("", "the paper's way"), ("selaware", "selection-aware")) if by_variant[v][0]]
-    text = "; ".join(verdicts) or verdict([], True)
-    if verdicts and missing[0]:
-        text += f"; provisional, {missing[1] - missing[0]} of its {missing[1]} cells measured"
-    return "; ".join(parts) or "not measured yet", bound, text
+    missing = {v: missing_cells("fig5", lambda c, v=v: c.n_objects in (5, 6) and (
+        (c.k == c.n_objects and not c.variant) or (c.k in (2, 4) and c.selector == "dynamic-knn" and c.variant == v)))
+        for v, _ in WAYS}
+    return "; ".join(parts) or "not measured yet", bound, verdicts_by_way(outcomes, complete, missing)
 
 
 def finding_table1() -> tuple[str, str, str]:

@@ -85,3 +85,9 @@ def test_full_state_finding_judges_each_way_of_training_pi_k_apart(monkeypatch):
     _, _, text = findings.finding_fig5_full_state()
     assert text.startswith("the paper's way: does not hold (0 better, 2 tied, 2 worse)")
     assert "selection-aware: holds (2 better, 2 tied, 0 worse)" in text
+
+
+def test_a_way_of_training_with_cells_in_the_spec_but_none_measured_says_so():
+    text = findings.verdicts_by_way({"": ["win"], "selaware": []}, {"": True, "selaware": True},
+                                    {"": (0, 4), "selaware": (4, 4)})
+    assert text == "the paper's way: holds (1 better, 0 tied, 0 worse); selection-aware: not measured yet"
