@@ -181,3 +181,18 @@ def test_a_missing_policy_in_another_folder_is_skipped_not_replaced_by_the_shipp
     name = _config(tmp_path, [relative])
     status = run_sweep(name, out=str(tmp_path / "out"), workers=1, progress=False, log=lambda s: None)
     assert status["ran"] == [] and len(status["skipped"]) == 2
+
+
+def test_a_sweep_renders_only_its_own_cells_from_a_shared_folder(tmp_path):
+    # fig6 is fig5's cells at N = 6: the N = 3..5 cells in the same folder must not enter its table or its bound
+    root = tmp_path / "fig5"
+    (root / "cells").mkdir(parents=True)
+    for cell in cells_of(load_config("fig5")):
+        if cell.k in (2, 6) and "selaware" not in cell.policy:
+            summary = _fake_summary(0.5 if cell.n_objects == 6 else 0.9, n=100)
+            (root / "cells" / f"{cell.id}.json").write_text(json.dumps({"cell": asdict(cell), "summary": summary}))
+    status = run_sweep("fig6", out=str(root), render_only=True, log=lambda s: None)
+    table = Path(status["table"]).read_text()
+    rows = [line for line in table.splitlines() if line.startswith("| rarl-")]
+    assert rows and all(line.split(" | ")[2] == "6" for line in rows)  # the N column
+    assert "90.0" not in table  # no N < 6 rate anywhere, the planner's bound included

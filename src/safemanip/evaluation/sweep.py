@@ -489,7 +489,9 @@ def run_sweep(name: str, *, episodes: int | None = None, out: str | None = None,
             if status["interrupted"]:
                 log(f"interrupted: {len(status['ran'])} cell(s) finished in this run are kept; run the same command "
                     f"to continue")
-        results = load_results(root)
+        # only this spec's cells: sweeps may share a folder (fig6 draws N = 6 from fig5's cells at N = 3..6)
+        wanted = {c.id for c in cells}
+        results = [r for r in load_results(root) if Cell(**r["cell"]).id in wanted]
         status["figure"], status["table"] = render(cfg, results, root)
     log(f"wrote {status['table']}" + (f" and {status['figure']}" if status["figure"] else ""))
     if status["skipped"]:
@@ -906,7 +908,8 @@ def _plot_fig6(cfg: dict, results: list[dict], path: Path, bounds: list[dict] = 
     order = _orderer(cfg)
     results = sorted(results, key=lambda r: order(("k", "n_objects", "selector", "constraints"),
                                                   [r["cell"][x] for x in ("k", "n_objects", "selector", "constraints")]))
-    labels = [f"k={r['cell']['k']}, N={r['cell']['n_objects']}\n{r['cell']['selector']}" for r in results]
+    labels = [f"k={r['cell']['k']}{' sel.-aware' if r['cell'].get('variant') else ''}, N={r['cell']['n_objects']}"
+              f"\n{r['cell']['selector']}" for r in results]
     fig, ax = plt.subplots(figsize=(max(5, 1.2 * len(results) + 2), 4.5))
     bottom = np.zeros(len(results))
     for name, keys, colour in FIG6_STACK:
