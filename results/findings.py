@@ -24,6 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
 from safemanip.evaluation.sweep import Cell, cells_of, load_config, load_results, pool_seeds  # noqa: E402
+from safemanip.util.files import atomic_write_text  # noqa: E402
 
 DOC = ROOT / "docs" / "results.md"
 SEEDS = 3
@@ -262,9 +263,7 @@ def main(argv: list[str] | None = None) -> int:
                   "and commit it", file=sys.stderr)
             return 1
         return 0
-    tmp = DOC.with_suffix(".md.tmp")  # atomic: a crash mid-write leaves the old file, not half a table
-    tmp.write_text(text)
-    tmp.replace(DOC)
+    atomic_write_text(DOC, text)  # a crash mid-write leaves the old page, not half a table
     print(text[text.index("<!-- status -->"):])
     return 0
 
