@@ -196,3 +196,16 @@ def test_a_sweep_renders_only_its_own_cells_from_a_shared_folder(tmp_path):
     rows = [line for line in table.splitlines() if line.startswith("| rarl-")]
     assert rows and all(line.split(" | ")[2] == "6" for line in rows)  # the N column
     assert "90.0" not in table  # no N < 6 rate anywhere, the planner's bound included
+
+
+def test_only_runs_the_matching_cells_and_a_pattern_matching_nothing_is_an_error(tmp_path):
+    pol = make_policy(tmp_path / "rarl-k2-conservative.safetensors", 2)
+    name = _config(tmp_path, [pol])
+    out = tmp_path / "out"
+    status = run_sweep(name, out=str(out), workers=1, progress=False, log=lambda s: None, only=["*__dynamic-knn__*"])
+    assert len(status["ran"]) == 1 and "__dynamic-knn__" in status["ran"][0]
+    assert [p.name for p in (out / "cells").glob("*.json")] == [f"{status['ran'][0]}.json"]
+    with pytest.raises(SweepError, match=r"--only \*-s7__\* matches no cell of sweep mini; cell ids look like rarl-k2"):
+        run_sweep(name, out=str(out), workers=1, progress=False, log=lambda s: None, only=["*-s7__*"])
+    with pytest.raises(SweepError, match="drop one of them"):
+        run_sweep(name, out=str(out), render_only=True, log=lambda s: None, only=["*"])

@@ -28,6 +28,7 @@ SWEEP_EXAMPLES = """examples:
   safemanip sweep fig5                      run (or resume) the Fig. 5 grid, then draw it
   safemanip sweep fig6 --episodes 200       a quicker pass (cells are redone when the count changes)
   safemanip sweep fig5 --render-only        redraw figure and table from the stored cell results
+  safemanip sweep fig4 --only '*-s0__*'     run only the cells whose id matches (here training seed 0's)
   safemanip sweep --list                    the shipped sweeps
   safemanip sweep table2 --vlm-backend openai --vlm-cache vlm_cache --vlm-timeout 20
                                             the VLM cells against a server, with the eval's limits
@@ -72,7 +73,8 @@ def _cmd_sweep(args) -> int:
 
     vlm = {f: getattr(args, f) for f in VLM_FIELDS if getattr(args, f)}
     status = run_sweep(args.name, episodes=args.episodes, out=args.out, workers=args.workers, backend=args.backend,
-                       address=args.address, render_only=args.render_only, progress=not args.no_progress, vlm=vlm)
+                       address=args.address, render_only=args.render_only, progress=not args.no_progress, vlm=vlm,
+                       only=args.only)
     if status.get("interrupted"):
         return 128 + status["interrupted"]
     if not args.render_only and status["skipped"] and not (status["ran"] or status["done"]):
@@ -120,6 +122,9 @@ def register(subparsers) -> None:
     sw.add_argument("--episodes", type=int_in(1, SEED_STRIDE), help="episodes per cell and training seed (default: the sweep's own, 1000 for the shipped ones)")
     sw.add_argument("--out", help="results folder (default: results/FOLDER, the sweep's own)")
     sw.add_argument("--render-only", action="store_true", help="only redraw figure and table from stored results")
+    sw.add_argument("--only", action="append", metavar="PATTERN",
+                    help="run only the cells whose id matches this shell-style pattern (repeatable); the figure "
+                         "and table still show every stored cell")
     sw.add_argument("--list", action="store_true", help="list the shipped sweeps")
     add_vlm_options(sw)
     _add_run_options(sw)

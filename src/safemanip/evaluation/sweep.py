@@ -445,14 +445,18 @@ def _done(path: Path, cell: Cell) -> bool:
 
 def run_sweep(name: str, *, episodes: int | None = None, out: str | None = None, workers: int = 2,
               backend: str = "local", address: str | None = None, render_only: bool = False,
-              progress: bool = True, log=print, vlm: dict | None = None) -> dict:
+              progress: bool = True, log=print, vlm: dict | None = None, only: list[str] | None = None) -> dict:
     """Run the cells not done yet, then render. Returns {"ran", "done", "skipped", "failed", "interrupted",
     "figure", "table"}; "interrupted" is the signal number when SIGINT/SIGTERM stopped the run (the cells
     finished before it are kept, the one in progress is redone next time).
 
     ``vlm``: the semantic-backend options (``VLM_FIELDS`` of the harness: backend, model, cache, timeout,
     budgets, breaker), applied to the cells that query the backend. The output folder and these options are
-    checked, and the folder locked, before any cell runs."""
+    checked, and the folder locked, before any cell runs.
+
+    ``only``: shell-style patterns (``fnmatch``) over cell ids; only the cells that match one are run, e.g.
+    ``["*-s0__*"]`` for training seed 0's cells while the other seeds' policies are still training. The figure
+    and table are still drawn from every stored cell of the spec."""
     from types import SimpleNamespace
 
     from safemanip.evaluation.harness import VLM_FIELDS, vlm_option_problems
@@ -464,8 +468,11 @@ def run_sweep(name: str, *, episodes: int | None = None, out: str | None = None,
     if unknown:
         raise SweepError(f"unknown semantic-backend option(s) {unknown}; known: {', '.join(VLM_FIELDS)}")
     cells = cells_of(cfg, episodes, vlm)
+    if only and render_only:
+        raise SweepError("--only picks cells to run and --render-only runs none: drop one of them")
+    to_run = select_cells(cells, only, cfg["name"]) if only else cells
     if vlm and not render_only:
-        if not any(c.vlm for c in cells):
+        if not any(c.vlm for c in to_run):
             raise SweepError(f"sweep {cfg['name']} has no cell that queries the semantic backend (selector "
                              f"dynamic-vlm or constraints vlm): drop the --vlm-* options")
         problems = vlm_option_problems(SimpleNamespace(**{f: vlm.get(f) for f in VLM_FIELDS}), uses_vlm=True)
@@ -483,7 +490,7 @@ def run_sweep(name: str, *, episodes: int | None = None, out: str | None = None,
         if not render_only:
             try:
                 with stop_on_signals(), _ray_session(backend, address, workers):
-                    _run_cells(cfg, cells, root, status, workers, backend, address, progress, log, vlm)
+                    _run_cells(cfg, to_run, root, status, workers, backend, address, progress, log, vlm)
             except Interrupted as stop:
                 status["interrupted"] = stop.signum
             if status["interrupted"]:
@@ -497,6 +504,19 @@ def run_sweep(name: str, *, episodes: int | None = None, out: str | None = None,
     if status["skipped"]:
         log(f"{len(status['skipped'])} cell(s) skipped for missing policies (train commands above)")
     return status
+
+
+def select_cells(cells: list[Cell], patterns: list[str], name: str) -> list[Cell]:
+    """The cells whose id matches one of ``patterns`` (shell-style, ``fnmatch``), in the sweep's order. A pattern
+    that matches no cell is an error that shows what ids look like: a typo must not run nothing silently."""
+    from fnmatch import fnmatchcase
+
+    unmatched = [p for p in patterns if not any(fnmatchcase(c.id, p) for c in cells)]
+    if unmatched:
+        example = cells[0].id if cells else "(the sweep has no cells)"
+        raise SweepError(f"--only {' '.join(unmatched)} matches no cell of sweep {name}; cell ids look like "
+                         f"{example} (use * and ?, e.g. --only '*-s0__*' for training seed 0)")
+    return [c for c in cells if any(fnmatchcase(c.id, p) for p in patterns)]
 
 
 @contextlib.contextmanager
