@@ -874,10 +874,11 @@ def _plot_fig5(cfg: dict, results: list[dict], path: Path, bounds: list[dict] = 
         ax.set_xticks(sorted({r["cell"]["n_objects"] for r in results}))
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel("success rate (%)")
-    axes[0][-1].legend(fontsize=8)
+    # beside the panels, not on them: with nine lines the legend covered the dynamic-kNN curves at N = 3..4
+    axes[0][-1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0))
     fig.suptitle(cfg.get("title", cfg["name"]), fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
 
 
