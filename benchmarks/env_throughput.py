@@ -43,7 +43,7 @@ def env_rate(env: SlideOutEnv, steps: int, rng):
     """(env steps/s, mean episode length, ms per reset, ctrl per step, act per step, episode start states)."""
     controller = ScriptedController()
     noise = rng.normal(0, 0.3, (steps, 3))
-    ctrls = np.zeros((steps, env.model.nu))
+    ctrls: list = []  # per step, the embodiment's phases ((substeps, ctrl), ...)
     acts = np.zeros((steps, env.model.na))
     _, info = env.reset(seed=int(rng.integers(1 << 30)))
     controller.reset()
@@ -58,8 +58,8 @@ def env_rate(env: SlideOutEnv, steps: int, rng):
             _, info = env.reset()
             resetting += time.perf_counter() - t1
         elapsed += time.perf_counter() - t0
-        # what the embodiment commanded for this step (read back from the state the step started from)
-        ctrls[i] = env._bench_ctrl
+        # what the embodiment commanded for this step (its phases) and the set-points the step started from
+        ctrls.append(env._bench_phases)
         acts[i] = env._bench_act
         if term or trunc:
             controller.reset()
@@ -68,15 +68,16 @@ def env_rate(env: SlideOutEnv, steps: int, rng):
     return steps / elapsed, steps / len(starts), 1e3 * resetting / max(resets, 1), ctrls, acts, starts
 
 
-def raw_rate(model, data, ctrls, acts, starts, n_substeps) -> float:
-    """Replays the env's physics: the same initial states and actuator commands, only mj_step."""
+def raw_rate(model, data, ctrls, acts, starts, actuators) -> float:
+    """Replays the env's physics: the same initial states and actuator commands (each step's phases), only mj_step."""
     t0 = time.perf_counter()
     for i in range(len(ctrls)):
         if i in starts:
             mujoco.mj_setState(model, data, starts[i], STATE)
         data.act[:] = acts[i]
-        data.ctrl[:] = ctrls[i]
-        mujoco.mj_step(model, data, nstep=n_substeps)
+        for substeps, ctrl in ctrls[i]:
+            data.ctrl[actuators] = ctrl
+            mujoco.mj_step(model, data, nstep=substeps)
     return len(ctrls) / (time.perf_counter() - t0)
 
 
@@ -86,8 +87,10 @@ def _record_commands(env: SlideOutEnv) -> None:
     original = robot.command_velocity
 
     def command_velocity(model, data, binding, velocity, dt):
-        original(model, data, binding, velocity, dt)
-        env._bench_ctrl, env._bench_act = data.ctrl.copy(), data.act.copy()
+        phases = original(model, data, binding, velocity, dt)
+        env._bench_phases = tuple((n, np.array(ctrl, copy=True)) for n, ctrl in phases)
+        env._bench_act = data.act.copy()
+        return phases
 
     robot.command_velocity = command_velocity
 
@@ -166,14 +169,14 @@ def main() -> None:
                     envs.append(rate)
                     lengths.append(length)
                     reset_ms.append(reset)
-                    raws.append(raw_rate(env.model, env.data, ctrls, acts, starts, env.n_substeps))
+                    raws.append(raw_rate(env.model, env.data, ctrls, acts, starts, env.binding.actuator_ids))
                     bare_starts = {}
                     for i, s in starts.items():  # same qpos/qvel/act, the bare model has no sensor history
                         mujoco.mj_setState(env.model, env.data, s, STATE)
                         bare_data.qpos[:], bare_data.qvel[:], bare_data.act[:] = env.data.qpos, env.data.qvel, env.data.act
                         bare_data.time = env.data.time
                         bare_starts[i] = _physics_state(bare, bare_data)
-                    bares.append(raw_rate(bare, bare_data, ctrls, acts, bare_starts, env.n_substeps))
+                    bares.append(raw_rate(bare, bare_data, ctrls, acts, bare_starts, env.binding.actuator_ids))
                 env.reset(seed=1)
                 env.step(np.array([0.5, 0.0, 0.0]))
                 controller_us, judge_us = component_costs(env)

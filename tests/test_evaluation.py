@@ -33,9 +33,9 @@ def make_policy(path, k, constraints="conservative", hidden=(16, 16), seed=0, go
 
         w = np.zeros((3, d), np.float32)
         # obs[6:8] = bottom box x, y; a weak pull across, so that the pull out stays straight (heading 10 deg aside
-        # drags the top box along) and the box heads for the goal once it is out
-        w[0, 6], w[1, 7] = -4.0, -1.0
-        b = np.array([4.0 * GEOMETRY.goal_xy[0], 1.0 * GEOMETRY.goal_xy[1], 0.0], np.float32)
+        # drags the top box along: with a gain of 1 across, every pull did) and the box heads for the goal once out
+        w[0, 6], w[1, 7] = -4.0, -0.5
+        b = np.array([4.0 * GEOMETRY.goal_xy[0], 0.5 * GEOMETRY.goal_xy[1], 0.0], np.float32)
         arrays, hidden = [w, b], ()
     else:
         sizes = [d, *hidden, 3]

@@ -72,3 +72,31 @@ def test_the_pads_drag_the_box_along():
     state = env.scene_state()
     assert state.bottom_pos[0] - env.geometry.bottom_xy[0] > 0.15  # the box came along
     np.testing.assert_allclose(state.ee_pos[:2] - state.bottom_pos[:2], offset, atol=0.01)  # hardly slipping
+
+
+@pytest.mark.parametrize("embodiment", ["panda", "hand"])
+def test_the_pads_push_no_harder_than_their_springs_at_any_substep(embodiment):
+    """During the fastest pulls and stops the arm can make, the pads' force on the box at every 2 ms substep stays
+    within what their springs can push (both at the end of their travel; 5 % for the pads' damping). Forces
+    averaged over a control step hid 4 ms spikes of up to 84 N while the pad slides inherited a 5 kg armature
+    from the robot model's default class (``add_pad``)."""
+    env = SlideOutEnv(n_objects=0, embodiment=embodiment)
+    env.reset(seed=0)
+    forces = []
+    env.watch_substeps(1, lambda e: forces.append(_pad_force(e)))
+    for action in [[1.0, 0.0, 0.0]] * 8 + [[-1.0, 0.0, 0.0]] * 3 + [[0.0, 1.0, -1.0]] * 4 + [[0.0, 0.0, 0.0]] * 5:
+        env.step(np.asarray(action, dtype=np.float32))
+    assert len(forces) == 20 * 25 and max(forces[50:]) > 0.8 * NOMINAL  # the pads pressed throughout
+    assert max(forces) <= 1.05 * MOST, f"the pads pushed with up to {max(forces):.1f} N; their springs give {MOST:.0f}"
+
+
+def test_the_pad_slides_take_nothing_from_the_robot_models_default_class():
+    from safemanip.scene.builder import build_model
+    from safemanip.scene.grasp import PAD_MASS
+
+    model = build_model((), embodiment="panda")
+    for pad in ("panda/pad_left", "panda/pad_right"):
+        joint, geom = model.joint(pad), model.geom(pad)
+        assert model.dof_armature[joint.dofadr[0]] == 0.0 and model.dof_frictionloss[joint.dofadr[0]] == 0.0
+        assert model.body_mass[joint.bodyid[0]] == pytest.approx(PAD_MASS)
+        assert geom.margin[0] == 0.0 and tuple(geom.solref) == (0.02, 1.0)

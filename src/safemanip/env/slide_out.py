@@ -188,6 +188,8 @@ class SlideOutEnv(gym.Env):
 
     # ------------------------------------------------------------------ dynamics
     def step(self, action):
+        if self.model is None:  # no scene yet: reset() builds it (gymnasium's OrderEnforcing says the same)
+            raise gym.error.ResetNeeded("call reset() before step(): the env has no scene until its first reset()")
         _check_action(action)
         request = np.asarray(action, dtype=np.float64).reshape(3)
         if not (math.isfinite(request[0]) and math.isfinite(request[1]) and math.isfinite(request[2])):
@@ -217,15 +219,9 @@ class SlideOutEnv(gym.Env):
         self._hold = [x + error_x + (float(command[0]) - correction_x) * CONTROL_DT,
                       y + error_y + (float(command[1]) - correction_y) * CONTROL_DT]
         m, d = self.model, self.data
-        self.robot.command_velocity(m, d, self.binding, command, CONTROL_DT)
+        phases = self.robot.command_velocity(m, d, self.binding, command, CONTROL_DT)
         time_before = d.time
-        if self._substep_hook is None:
-            mujoco.mj_step(m, d, nstep=self.n_substeps)
-        else:  # the same mj_step calls in chunks (bit-identical physics), with the hook watching in between
-            every, hook = self._substep_hook
-            for done in range(every, self.n_substeps + every, every):
-                mujoco.mj_step(m, d, nstep=min(every, self.n_substeps - done + every))
-                hook(self)
+        self._run_substeps(m, d, phases)
         self._t += 1
         # On a bad qpos/qvel/qacc MuJoCo resets the whole MjData (time back to 0) and carries on: time that
         # did not advance by the full control step is the cheap trace of it; NaNs that slipped through into
@@ -247,6 +243,27 @@ class SlideOutEnv(gym.Env):
             event, truncated = "timeout", True
         # reward: the paper's r = min(l, g); the reach-avoid learner reads l and g from info instead
         return self._observe(), float(min(l, g)), terminated, truncated, self._info(terms, event, culprit)
+
+    def _run_substeps(self, m, d, phases) -> None:
+        """The control step's physics: each phase's servo command for its substeps. With a substep hook, the same
+        mj_step calls in chunks (bit-identical physics), the hook watching every ``every`` substeps."""
+        actuators = self.binding.actuator_ids
+        if self._substep_hook is None:
+            for substeps, ctrl in phases:
+                d.ctrl[actuators] = ctrl
+                mujoco.mj_step(m, d, nstep=substeps)
+            return
+        every, hook = self._substep_hook
+        done = 0
+        for substeps, ctrl in phases:
+            d.ctrl[actuators] = ctrl
+            end = done + substeps
+            while done < end:
+                chunk_end = min(end, (done // every + 1) * every)
+                mujoco.mj_step(m, d, nstep=chunk_end - done)
+                done = chunk_end
+                if done % every == 0:
+                    hook(self)
 
     def _resting(self) -> bool:
         """Whether the held box lies on the table (its bottom face within RESTING_TOLERANCE of the top): a box

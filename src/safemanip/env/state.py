@@ -35,8 +35,8 @@ class StateGather:
 
     The flat state is ``[ee_pos(3), ee_vel(3), box_vel(3), top_vel(3), obj_vel(3N), bottom_pos(3), top_pos(3),
     obj_pos(3N), constraint one-hots(3N), footprint radii(N, with object_size)]``: the order ``_read_state``
-    concatenates its sources in (the site's position, two sensors, the free joints' linear velocities, the
-    bodies' positions, the episode's constants); the slices below name each block. An observation is one
+    concatenates its sources in (the site's position, the end-effector's velocity sensor, the free joints' linear
+    velocities, the bodies' positions, the episode's constants); the slices below name each block. An observation is one
     gather from it.
 
     The judge sensors' history is read as one (substeps, columns) gather through ``history_index``; the
@@ -49,7 +49,7 @@ class StateGather:
     xmat: np.ndarray  # flat
     sensordata: np.ndarray
     history: np.ndarray
-    sensor_index: np.ndarray  # in sensordata: the end-effector's, then the held box's linear velocity
+    sensor_index: np.ndarray  # in sensordata: the end-effector's linear velocity
     ee_site: int
     top_up_z: int  # index in ``xmat`` of the top box's up-axis z component
     body_rows: np.ndarray
@@ -124,10 +124,13 @@ class StateGather:
         return cls(
             xpos=data.xpos, qvel=data.qvel, site_xpos=data.site_xpos, xmat=data.xmat.reshape(-1),
             sensordata=data.sensordata, history=data.history,
-            sensor_index=np.r_[sensor_values("ee_vel"), sensor_values("judge_box_vel")].astype(np.intp),
+            sensor_index=sensor_values("ee_vel").astype(np.intp),
             ee_site=int(binding.ee_site), top_up_z=9 * int(index.top_box_body) + 8,
             body_rows=np.r_[index.bottom_box_body, index.top_box_body, index.object_bodies].astype(np.intp),
-            qvel_index=np.r_[np.arange(index.top_box_qvel, index.top_box_qvel + 3),
+            # the boxes' and objects' free joints: linear velocities after the last substep (a sensor's value is
+            # computed before that substep's integration, 2 ms old; the held box's at-rest test must not be)
+            qvel_index=np.r_[np.arange(index.bottom_box_qvel, index.bottom_box_qvel + 3),
+                             np.arange(index.top_box_qvel, index.top_box_qvel + 3),
                              index.object_qvel_flat].astype(np.intp),
             ee_pos=ee_pos, ee_vel=ee_vel, box_vel=box_vel, top_vel=top_vel, obj_vel=obj_vel,
             bottom_pos=bottom_pos, top_pos=top_pos, obj_pos=obj_pos,

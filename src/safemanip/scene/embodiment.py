@@ -33,7 +33,9 @@ class Embodiment(Protocol):
     ``attach`` builds the robot into the scene's spec, its pads resting on the lip of the held box (a free body
     named ``box_bottom`` that the builder adds); ``bind`` resolves ids once per compiled model; ``reset`` puts it
     at its home configuration, the pads pressed in by ``PAD_PRESS``;
-    ``command_velocity`` makes the end-effector track a world-frame velocity over the next control step.
+    ``command_velocity`` makes the end-effector track a world-frame velocity over the next control step: it returns
+    the step as phases ``((substeps, ctrl), ...)``, each ``ctrl`` written to the binding's ``actuator_ids`` for that
+    many substeps (the substeps add up to the control step's), so that no Python runs inside a phase.
     Everything in the subtree of ``root_body_name`` is "manipulated": it counts in g_hard and g_soft.
     """
 
@@ -48,7 +50,7 @@ class Embodiment(Protocol):
     def attach(self, spec: mujoco.MjSpec, geo: TaskGeometry) -> None: ...
     def bind(self, model: mujoco.MjModel): ...
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, binding) -> None: ...
-    def command_velocity(self, model, data, binding, velocity: np.ndarray, dt: float) -> None: ...
+    def command_velocity(self, model, data, binding, velocity: np.ndarray, dt: float) -> tuple: ...
     def holding_reach(self, geo: TaskGeometry) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """Where on the table the robot can hold the box: (xs, ys, mask) on a grid of box centres, or None for
         anywhere. The planner keeps the box within it."""

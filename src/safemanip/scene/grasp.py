@@ -102,14 +102,25 @@ def add_pad(parent: mujoco.MjsBody, name: str, pos, quat=(1.0, 0.0, 0.0, 0.0), g
     """A fingertip pad below ``parent``: a body at ``pos`` (parent frame) on a slide along its own +z (pointing
     out of the fingertip, down onto the box), preloaded by a spring against the end of its range, carrying a
     capsule across its x axis whose lowest point is ``PAD_RADIUS`` past ``pos`` along +z."""
+    # Every physical property is set here, none inherited: a pad added below a robot model's body takes that
+    # model's default class otherwise (gymnasium-robotics' Panda gave the slide an armature of 5, a 5 kg pad on
+    # a 200 N/m spring, and the capsule a 1 mm contact margin: the box rattled between the pads with up to 84 N
+    # at 2 ms and shook the arm's joints to twice Franka's acceleration limits).
     pad = parent.add_body(name=name, pos=list(pos), quat=list(quat), gravcomp=1.0)
     pad.add_joint(name=name, type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[0, 0, 1], range=[-PAD_TRAVEL, 0.0],
                   limited=mujoco.mjtLimited.mjLIMITED_TRUE, stiffness=[PAD_STIFFNESS, 0.0, 0.0],
-                  springref=PAD_PRELOAD, damping=[PAD_DAMPING, 0.0, 0.0])
+                  springref=PAD_PRELOAD, damping=[PAD_DAMPING, 0.0, 0.0], armature=0.0, frictionloss=0.0,
+                  solref_limit=list(_SOLREF), solimp_limit=list(_SOLIMP))
     pad.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[PAD_RADIUS, PAD_HALF_LENGTH, 0.0],
                  quat=[np.sqrt(0.5), 0.0, np.sqrt(0.5), 0.0],  # the capsule's axis along the pad's x
                  mass=PAD_MASS, rgba=[0.15, 0.15, 0.15, 1.0], friction=[PAD_FRICTION, 0.005, 0.0001],
-                 gap=gap, condim=3, contype=COLLIDE_ROBOT | COLLIDE_PADS, conaffinity=0)
+                 margin=0.0, gap=gap, solref=list(_SOLREF), solimp=list(_SOLIMP), solmix=1.0, priority=0,
+                 condim=3, contype=COLLIDE_ROBOT | COLLIDE_PADS, conaffinity=0)
+
+
+_SOLREF = (0.02, 1.0)
+"""MuJoCo's default contact and limit softness, stated: the pads must not take a robot model's default class."""
+_SOLIMP = (0.9, 0.95, 0.001, 0.5, 2.0)
 
 
 PAD_NOMINAL_QPOS = -PAD_PRESS

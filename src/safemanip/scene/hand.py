@@ -103,9 +103,10 @@ class CartesianHand:
         data.qpos[binding.pad_qpos] = PAD_NOMINAL_QPOS
 
     @staticmethod
-    def command_velocity(model, data, binding: HandBinding, velocity: np.ndarray, dt: float) -> None:
-        """Track end-effector ``velocity`` (m/s; the slide axes are world-aligned) over the coming step."""
-        data.ctrl[binding.actuator_ids] = (velocity - data.act[binding.act_adr]) / dt
+    def command_velocity(model, data, binding: HandBinding, velocity: np.ndarray, dt: float) -> tuple:
+        """Track end-effector ``velocity`` (m/s; the slide axes are world-aligned) over the coming step: one phase,
+        a linear ramp of the set-points (the ablation has no joints, so no joint jerk to limit)."""
+        return ((int(round(dt / model.opt.timestep)), (velocity - data.act[binding.act_adr]) / dt),)
 
     def holding_reach(self, geo: TaskGeometry):
         """The hand holds the box anywhere on the table: no reach map."""

@@ -20,7 +20,9 @@ posture) into joint velocities within the Panda's joint position and speed limit
 velocity servo whose set-point is an integrator state: the controller sets its rate so that the set-point
 ramps linearly from the last command to the new one over the step. MuJoCo runs the 25 substeps with no
 Python in between. Torques are limited to the Panda's 87 / 12 Nm. Each step's change of joint velocity is
-scaled down so that no joint accelerates faster than ``ACCEL_MARGIN`` of Franka's limit.
+scaled down so that no joint accelerates faster than ``ACCEL_MARGIN`` of Franka's limit, and the set-points'
+acceleration changes from one step's to the next over a substep (``jerk_limited_ramp``): within Franka's jerk
+limits at every 2 ms substep, as a real Panda's 1 kHz interface checks.
 
 The grasp (``scene/grasp.py``): the fingertip pads press on the lip of the bottom box that sticks out to
 the right from under the top box, and drag it by friction; the box is a free body.
@@ -37,8 +39,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from safemanip.control.diff_ik import (dls_joint_velocity, limit_joint_acceleration, limit_joint_velocity,
-                                       orientation_error)
+from safemanip.control.diff_ik import (dls_joint_velocity, jerk_limited_ramp, limit_joint_acceleration,
+                                       limit_joint_velocity, orientation_error)
 from safemanip.scene.config import GEOMETRY, TaskGeometry
 from safemanip.scene.grasp import (COLLIDE_ROBOT, PAD_CLEARANCE, PAD_NOMINAL_QPOS, PAD_PRESS, PAD_RADIUS, add_pad,
                                    boxes_to_meshes)
@@ -185,6 +187,7 @@ class PandaBinding:
     twist: np.ndarray  # (6,) buffer
     qpos: slice | np.ndarray  # qpos_adr / dof_adr as slices when contiguous (they are, as compiled)
     dofs: slice | np.ndarray
+    setpoint_rate: np.ndarray  # (7,) the servo set-points' rate (commanded joint acceleration) at the last substep
     speed_scale: float = 1.0  # last step: share of the IK's joint speeds the joint limits let through
 
 
@@ -246,7 +249,8 @@ class PandaArm:
             pad_qpos=np.array([model.joint(p).qposadr[0] for p in PANDA_PADS]),
             root_body=model.body(self.root_body_name).id, home_qpos=home, target_rotation=pose["site"][1],
             jacp=np.zeros((3, nv)), jacr=np.zeros((3, nv)), jac6=np.zeros((6, 7)), twist=np.zeros(6),
-            qpos=_as_slice(np.array([j.qposadr[0] for j in joints])), dofs=_as_slice(dofs))
+            qpos=_as_slice(np.array([j.qposadr[0] for j in joints])), dofs=_as_slice(dofs),
+            setpoint_rate=np.zeros(7))
 
     def holding_reach(self, geo: TaskGeometry) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Where on the table the arm can hold the box (``holding_reach``, solved once per process)."""
@@ -258,9 +262,12 @@ class PandaArm:
         data.qpos[binding.pad_qpos] = PAD_NOMINAL_QPOS  # pressed in, just touching the lip: no start-up jolt
         data.qvel[binding.dof_adr] = 0.0
         data.act[binding.act_adr] = 0.0
+        binding.setpoint_rate = np.zeros(7)
 
-    def command_velocity(self, model, data, binding: PandaBinding, velocity: np.ndarray, dt: float) -> None:
-        """Track end-effector ``velocity`` (world frame, m/s) over the coming control step of ``dt`` s."""
+    def command_velocity(self, model, data, binding: PandaBinding, velocity: np.ndarray, dt: float) -> tuple:
+        """Track end-effector ``velocity`` (world frame, m/s) over the coming control step of ``dt`` s.
+
+        Returns the step's servo commands as phases, ((substeps, ctrl), ...), for the env to run."""
         dofs, jac, jacp, jacr = binding.dofs, binding.jac6, binding.jacp, binding.jacr
         mujoco.mj_jacSite(model, data, jacp, jacr, binding.ee_site)
         jac[:3] = jacp[:, dofs]
@@ -282,8 +289,12 @@ class PandaArm:
         previous = data.act[binding.act_adr]  # the set-points the last ramp ended at
         qdot = limit_joint_acceleration(qdot, previous, _ACCEL_CAP * dt)
         binding.speed_scale = math.sqrt(float(qdot @ qdot) / unlimited) if unlimited > 0.0 else 1.0
-        # ramp the servo set-points linearly from where they are to qdot over the step
-        data.ctrl[binding.actuator_ids] = (qdot - previous) / dt
+        # ramp the servo set-points from where they are to qdot over the step, the joint accelerations blended
+        # from the last step's over the first substep (within Franka's jerk limits at 1 kHz)
+        substeps = int(round(dt / model.opt.timestep))
+        first, rest = jerk_limited_ramp(previous, qdot, binding.setpoint_rate, substeps, model.opt.timestep)
+        binding.setpoint_rate = rest
+        return (1, first), (substeps - 1, rest)
 
 
 _LOWER = FRANKA_JOINT_RANGES[:, 0] + LIMIT_MARGIN
