@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -172,6 +173,121 @@ def test_a_cache_entry_nested_deep_is_a_miss(tmp_path):
         sent = len(server.requests)
         backend.assign_constraints(ConstraintQuery(names=NAMES))  # readwrite: a miss, asked again and stored
         assert len(server.requests) == sent + 1 and len(json.loads(entry.read_text())["answer"]["constraints"]) == 3
+
+
+
+# ------------------------------------------------------------------------------------------ 4. an unwritable VLM cache
+def _can_write_into(folder: Path) -> bool:
+    try:
+        (folder / "probe").write_text("x")
+    except OSError:
+        return False
+    (folder / "probe").unlink()
+    return True
+
+
+@pytest.fixture
+def unwritable_cache(tmp_path, request):
+    """A --vlm-cache folder no answer can be stored in, even by root: the path is a regular file, or lies under
+    one; or a folder without write permission, made immutable (chattr +i) where permissions do not stop this
+    user (root); skipped only where neither stops it."""
+    def make(case: str) -> Path:
+        blocker = tmp_path / "not-a-folder"
+        blocker.write_text("a file")
+        if case == "a-file":
+            return blocker
+        if case == "under-a-file":
+            return blocker / "cache"
+        folder = tmp_path / "read-only"
+        folder.mkdir()
+        folder.chmod(0o555)
+        request.addfinalizer(lambda: folder.chmod(0o755))
+        if _can_write_into(folder) and shutil.which("chattr"):
+            if subprocess.run(["chattr", "+i", str(folder)], capture_output=True).returncode == 0:
+                request.addfinalizer(lambda: subprocess.run(["chattr", "-i", str(folder)], capture_output=True))
+        if _can_write_into(folder):
+            pytest.skip("this user can write into a read-only folder and cannot make one immutable here")
+        return folder
+    return make
+
+
+def _constraints_for(req):
+    labels = schema_of(req)["properties"]["constraints"]["required"]
+    return {"constraints": {lbl: {"explanation": "x", "constraint": "soft_contact"} for lbl in labels}}
+
+
+UNWRITABLE = ["a-file", "under-a-file", "read-only"]
+
+
+@pytest.mark.parametrize("case", UNWRITABLE)
+def test_classify_constraints_refuses_an_unwritable_vlm_cache_before_any_request(capsys, unwritable_cache, case):
+    """It used to ask the server, then crash with an OSError when storing the answer (issue 44)."""
+    cache = unwritable_cache(case)
+    with FakeServer(json_reply(_constraints_for)) as server:
+        err = assert_refused(capsys, ["classify-constraints", "--vlm-backend", "openai", "--vlm-base-url",
+                                      server.base_url, "--vlm-cache", cache, "red mug"], "--vlm-cache")
+    assert len(err.strip().splitlines()) == 1 and str(cache) in err
+    assert server.requests == []  # refused up front: no answer was asked for and then lost
+    # replaying stored answers only reads the folder: --vlm-cache-only is not refused for it
+    code, _, err = run(capsys, ["classify-constraints", "--vlm-backend", "openai", "--vlm-cache", cache,
+                                "--vlm-cache-only", "red mug"])
+    assert code == 2 and "cache miss" in err
+
+
+@pytest.mark.parametrize("case", UNWRITABLE)
+@pytest.mark.parametrize("command", ["eval", "sweep"])
+def test_eval_and_sweep_refuse_an_unwritable_vlm_cache_before_any_episode(capsys, tmp_path, unwritable_cache, case,
+                                                                         command):
+    cache = unwritable_cache(case)
+    out = tmp_path / "out"
+    vlm = ["--vlm-backend", "openai", "--vlm-base-url", "http://127.0.0.1:9/v1", "--vlm-cache", cache]
+    if command == "eval":
+        argv = ["eval", "--policy", make_policy(tmp_path / "k2.safetensors", 2), "--n-objects", "3", "--selector",
+                "dynamic-vlm", "--episodes", "1", "--workers", "1", "--no-progress", "--out", out, *vlm]
+    else:
+        spec = tmp_path / "s.json"
+        spec.write_text(json.dumps({"name": "s", "figure": "table", "episodes": 1, "judge": "conservative",
+                                    "policies": ["policies/rarl-k2-conservative-s0.safetensors"], "n_objects": [3],
+                                    "selectors": ["dynamic-vlm"]}))
+        argv = ["sweep", spec, "--workers", "1", "--no-progress", "--out", out, *vlm]
+    assert_refused(capsys, argv, "--vlm-cache")
+    assert not out.exists()
+
+
+def test_a_cache_write_that_fails_after_the_answer_warns_and_goes_on(tmp_path):
+    """The folder was writable when the command started and is not when the answer comes (replaced by a file
+    here; a full disk or a changed mount alike): the answer is printed, a warning says nothing is cached. A real
+    process, so that the warning is seen as a user sees it on stderr."""
+    cache = tmp_path / "cache"
+    cache.mkdir()
+
+    def answer(req):
+        if cache.is_dir():
+            cache.rmdir()
+            cache.write_text("in the way")
+        return _constraints_for(req)
+
+    with FakeServer(json_reply(answer)) as server:
+        done = subprocess.run([sys.executable, "-m", "safemanip.cli", "classify-constraints", "--vlm-backend", "openai",
+                               "--vlm-base-url", server.base_url, "--vlm-cache", str(cache), "red mug", "toy sheep"],
+                              capture_output=True, text=True, timeout=120, env=ENV)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout == "red mug\tsoft_contact\ntoy sheep\tsoft_contact\n" and len(server.requests) == 1
+    assert "Traceback" not in done.stderr
+    (warning,) = done.stderr.strip().splitlines()
+    assert "going on without caching" in warning and str(cache) in warning
+
+
+def test_a_cache_that_cannot_store_warns_once_and_every_query_is_still_answered(caplog, tmp_path):
+    cache = ResponseCache(tmp_path / "file" / "cache")  # the API does not check the folder: every store fails
+    (tmp_path / "file").write_text("in the way")
+    with FakeServer(json_reply(_constraints_for)) as server:
+        backend = OpenAIBackend(model="m", base_url=server.base_url, timeout_s=5.0, cache=cache)
+        for names in (NAMES, NAMES[:2]):
+            got = backend.assign_constraints(ConstraintQuery(names=names))
+            assert got.constraints == ["soft_contact"] * len(names)
+    warnings = [r for r in caplog.records if "going on without caching" in r.getMessage()]
+    assert len(warnings) == 1 and len(server.requests) == 2 and cache.count() == 0
 
 
 # ------------------------------------------------------------------------------------------ 4. Ray addresses

@@ -280,6 +280,16 @@ def test_bad_env_kwargs(kwargs, error, match):
         SlideOutEnv(**kwargs)
 
 
+def test_step_before_reset_says_to_call_reset():
+    """Not an AttributeError on a private field: the gymnasium error, saying what to do (issue 44)."""
+    env = SlideOutEnv(n_objects=1)
+    with pytest.raises(gym.error.ResetNeeded, match=r"call reset\(\) before step\(\)"):
+        env.step(ZERO)
+    env.reset(seed=0)
+    env.step(ZERO)  # after a reset, steps run
+    env.close()
+
+
 # ================================================================== margins on hand-placed states
 
 

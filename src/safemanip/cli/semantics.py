@@ -84,6 +84,12 @@ def _backend_from_args(args):
             raise CommandError("--semantic-examples applies to --vlm-backend semantic only")
         if args.vlm_cache_only and not args.vlm_cache:
             raise CommandError("--vlm-cache-only needs --vlm-cache DIR (the directory holding the recorded answers)")
+        if args.vlm_cache and not args.vlm_cache_only:  # answers are stored: the folder must take them
+            from safemanip.semantics.cache import cache_dir_problems
+
+            problems = cache_dir_problems(args.vlm_cache)
+            if problems:
+                raise CommandError(problems[0])
         if not args.vlm_base_url and not os.environ.get("OPENAI_API_KEY") and not args.vlm_cache_only:
             raise CommandError(
                 "the openai backend has no server to talk to: set OPENAI_API_KEY for the OpenAI API, or point "

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import multiprocessing as mp
 import os
 import shutil
 import signal
@@ -28,7 +27,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from safemanip.rl.numpy_actor import make_numpy_actor  # no torch import: workers start fast
-from safemanip.util.procs import Interrupted, die_with_parent
+from safemanip.util.procs import Interrupted, QuietSpawnContext, die_with_parent, signals_deferred
 from safemanip.evaluation.registry import SelectorOptions
 
 BACKENDS = ("local", "ray")
@@ -268,11 +267,15 @@ def _run_local(spec, chunks, workers, on_chunk, records: list[dict], journal: st
 
         from concurrent.futures.process import BrokenProcessPool
 
-        with _env_vars(_ONE_THREAD):
-            pool = ProcessPoolExecutor(min(workers, len(chunks)), mp_context=mp.get_context("spawn"),
-                                       initializer=_worker_init, initargs=(os.getpid(), spec, journal))
+        pool = ProcessPoolExecutor(min(workers, len(chunks)), mp_context=QuietSpawnContext(),
+                                   initializer=_worker_init, initargs=(os.getpid(), spec, journal))
         try:
-            futures = [pool.submit(_run_chunk_in_worker, c) for c in chunks]
+            # the pool starts its workers here, in submit (not in its constructor): with the one-thread settings
+            # in the environment, and with SIGINT/SIGTERM held back until every worker is started and known to
+            # the pool, which then ends them all (a stop half-way through sending a worker its start-up data
+            # left a worker nobody ended, printing an unpickling traceback)
+            with _env_vars(_ONE_THREAD), signals_deferred():
+                futures = [pool.submit(_run_chunk_in_worker, c) for c in chunks]
             try:
                 for fut in as_completed(futures):
                     part = fut.result()

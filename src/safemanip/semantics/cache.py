@@ -4,12 +4,17 @@ One JSON file per answer (never pickle: cache directories get shared and JSON ca
 The key hashes everything that determines the answer's distribution: model, full prompt text,
 image bytes and the schema. Writes go to a temporary file that is then renamed with ``os.replace``,
 so a crash or a concurrent writer never leaves a half-written entry behind.
+
+A command checks its cache folder before it asks anything (``cache_dir_problems``); a store that still fails
+later (a full disk, a folder replaced or remounted read-only during the run) is a warning, and the run goes on
+without caching rather than losing the answer it just paid for.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
 import tempfile
 import time
@@ -17,8 +22,10 @@ from pathlib import Path
 from typing import Sequence
 
 from safemanip.semantics.base import BackendError
-from safemanip.util.files import JSONInputError, read_json_file
+from safemanip.util.files import JSONInputError, check_output_dir, read_json_file
 from safemanip.util.secrets import redact_value
+
+log = logging.getLogger(__name__)
 
 CACHE_FORMAT = "safemanip-vlm-cache/1"
 CACHE_MODES = ("readwrite", "readonly", "cache_only")
@@ -43,6 +50,25 @@ def cache_key(model: str, prompt: str, images: Sequence[bytes], schema: dict) ->
     return h.hexdigest()
 
 
+def cache_dir_problems(root: str | os.PathLike, flag: str = "--vlm-cache") -> list[str]:
+    """Problems with storing answers under folder ``root`` (created if missing), found before any query: every
+    existing component a folder, the deepest one writable; an existing folder also by a real probe write
+    (``os.access`` can say yes where a write fails, e.g. on a read-only mount or with ACLs)."""
+    problems = check_output_dir(root, flag)
+    if problems:
+        return [f"{problems[0]}; or replay stored answers with --vlm-cache-only"]
+    path = Path(root)
+    if path.is_dir():
+        try:
+            fd, probe = tempfile.mkstemp(prefix=".write-probe.", suffix=".tmp", dir=path)
+            os.close(fd)
+            os.unlink(probe)
+        except OSError as exc:
+            return [f"{flag} {path}: cannot store answers in it ({exc.strerror or exc}); choose a folder you can "
+                    f"write to, or replay stored answers with --vlm-cache-only"]
+    return []
+
+
 class ResponseCache:
     """Answers stored as ``<root>/<key[:2]>/<key>.json``.
 
@@ -60,6 +86,8 @@ class ResponseCache:
         self.mode = mode
         self.hits = 0
         self.misses = 0
+        self.write_error: str | None = None
+        """Why storing an answer failed (then nothing more is stored in this run), or None."""
 
     @property
     def cache_only(self) -> bool:
@@ -107,9 +135,18 @@ class ResponseCache:
         return redact_value(entry["answer"])
 
     def put(self, key: str, answer: dict, meta: dict | None = None) -> None:
-        """Store ``answer`` atomically (no-op unless mode is readwrite)."""
-        if self.mode != "readwrite":
+        """Store ``answer`` atomically (no-op unless mode is readwrite). A store that fails (OSError) is a warning,
+        once; the answer is still used and the cache is not written to again in this run."""
+        if self.mode != "readwrite" or self.write_error is not None:
             return
+        try:
+            self._store(key, answer, meta)
+        except OSError as exc:
+            self.write_error = f"{exc.strerror or exc}"
+            log.warning("cannot store VLM answers in the cache folder %s (%s: %s); going on without caching",
+                        self.root, exc.__class__.__name__, self.write_error)
+
+    def _store(self, key: str, answer: dict, meta: dict | None) -> None:
         path = self._path(key)
         path.parent.mkdir(parents=True, exist_ok=True)
         entry = {"format": CACHE_FORMAT, "key": key, "created_unix": time.time(), "meta": redact_value(meta or {}),

@@ -4,14 +4,21 @@ orderly stop of the main process.
 ``die_with_parent`` is the initializer of every worker process the package starts (training
 collectors, evaluation pools): on Linux it asks the kernel for SIGKILL when the parent dies
 (``prctl(PR_SET_PDEATHSIG)``), and on every platform a daemon thread watches the parent's pid as a
-fallback (e.g. a worker blocked on a pipe write when its parent was killed with SIGKILL)."""
+fallback (e.g. a worker blocked on a pipe write when its parent was killed with SIGKILL).
+
+A worker that is still starting when its parent stops is ended quietly from both sides: the parent holds
+SIGINT/SIGTERM back while it starts workers (``signals_deferred``), so that it never stops half-way through
+sending a worker its start-up data and every worker it started is one it knows to end; and a worker of
+``quiet_spawn_context`` that finds its start-up data cut off (the parent was killed) exits without a traceback."""
 
 from __future__ import annotations
 
 import contextlib
 import ctypes
+import multiprocessing.context
 import os
 import signal
+import sys
 import threading
 import time
 from typing import Iterator
@@ -39,6 +46,8 @@ def die_with_parent(parent_pid: int | None = None, poll_s: float = 0.5, ignore_s
     ``ignore_sigint`` a Ctrl-C in the terminal (sent to the whole process group) is left to the parent,
     which stops the workers."""
     parent_pid = parent_pid or os.getppid()
+    if getattr(sys.excepthook, "_start_up_only", False):  # started: errors are reported again (quiet_spawn_context)
+        sys.excepthook = sys.__excepthook__
     if ignore_sigint:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     with contextlib.suppress(Exception):  # not Linux, or no libc: the watchdog below still works
@@ -85,6 +94,87 @@ def stop_on_signals(raise_exc: bool = True, signals=(signal.SIGINT, signal.SIGTE
     finally:
         for s, h in old.items():
             signal.signal(s, h)
+
+
+@contextlib.contextmanager
+def signals_deferred(signals=(signal.SIGINT, signal.SIGTERM)) -> Iterator[None]:
+    """Hold SIGINT/SIGTERM back within the block and deliver them, to whatever handler was installed before, when
+    it ends. Around starting worker processes: a stop raised half-way through writing a worker's start-up data
+    leaves a worker that the pool does not know (so never ends) and that fails to unpickle what it got, with a
+    traceback. A second signal within the block is delivered at once (a start that hangs can still be stopped).
+    Only in the main thread (signal handlers run there); elsewhere the block runs as it is."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+
+    def restore() -> None:
+        for s, handler in old.items():
+            signal.signal(s, handler if handler is not None else signal.SIG_DFL)
+
+    def hold(signum, frame):
+        if held:  # asked twice: stop now, as without the block
+            held.clear()
+            restore()
+            signal.raise_signal(signum)
+        else:
+            held.append(signum)
+
+    old = {s: signal.signal(s, hold) for s in signals}
+    try:
+        yield
+    finally:
+        restore()
+        for signum in held:
+            signal.raise_signal(signum)
+
+
+def _start_quietly(parent_pid: int) -> None:
+    """Run in a starting worker while it unpickles its start-up data, before anything heavy is imported: leave
+    Ctrl-C to the parent, and exit without a traceback if the start-up fails because the parent stopped (data cut
+    off or a pipe closed by a killed parent, or the parent gone). ``die_with_parent`` restores the hook."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def hook(kind, value, tb) -> None:
+        import pickle
+
+        interrupted = issubclass(kind, (EOFError, pickle.UnpicklingError, BrokenPipeError, KeyboardInterrupt))
+        if interrupted or os.getppid() != parent_pid:
+            return  # the interpreter exits with code 1, silently: the parent that wanted this worker is gone
+        sys.__excepthook__(kind, value, tb)
+
+    hook._start_up_only = True  # type: ignore[attr-defined]
+    sys.excepthook = hook
+
+
+class _StartQuietly:
+    """Pickled first among a worker process's start-up data, so that ``_start_quietly`` runs in the worker before
+    the rest (the heavy part, e.g. policy weights) is read."""
+
+    def __init__(self, parent_pid: int):
+        self.parent_pid = parent_pid
+
+    def __reduce__(self):
+        return _start_quietly, (self.parent_pid,)
+
+
+def _rebuild_process(started, cls, state: dict):
+    process = cls.__new__(cls)
+    process.__dict__.update(state)
+    return process
+
+
+class QuietSpawnProcess(multiprocessing.context.SpawnProcess):
+    """A spawn process whose start-up (``_StartQuietly``) makes a start cut off by its parent's end silent."""
+
+    def __reduce__(self):
+        return _rebuild_process, (_StartQuietly(os.getpid()), type(self), self.__dict__)
+
+
+class QuietSpawnContext(multiprocessing.context.SpawnContext):
+    """``multiprocessing.get_context("spawn")`` with ``QuietSpawnProcess`` (for ``ProcessPoolExecutor(mp_context=)``)."""
+
+    Process = QuietSpawnProcess
 
 
 class WorkerDied(RuntimeError):
