@@ -10,7 +10,7 @@ from safemanip.selection.reducer import DUMMY_POSITIONS, DUMMY_RADIUS, Reducer, 
 from safemanip.evaluation.registry import (CONSTRAINT_SELECTORS, OBJECT_SELECTORS, SelectorOptions,
                                            make_constraint_selector, make_object_selector)
 from safemanip.selection.selectors import (ConservativeConstraints, DynamicKNN, FullSelector, GroundTruthConstraints,
-                                           PrivilegedSelector, StaticKNN)
+                                           PrivilegedCriticality, PrivilegedSelector, StaticKNN, criticality_first)
 
 BOX = np.array([0.0, 0.0, 0.035])
 
@@ -85,6 +85,33 @@ def test_privileged_prefers_fragile_then_tops_up_with_nearest_others():
     assert sel3.select(view(0, POS, classes), 3) == [2, 0, 3]  # two fragile, then the nearest other
     with pytest.raises(ValueError, match="privileged_classes"):
         PrivilegedSelector().select(view(0, POS), 2)
+
+
+def test_criticality_first_fills_the_slots_fragile_then_soft_then_durable():
+    classes = ["fragile", "durable", "fragile", "soft"]  # 3 (soft) is the nearest, 1 (durable) the next
+    box = BOX
+    assert criticality_first(box, np.c_[np.array(POS), np.zeros(4)], classes, 2) == [2, 0]
+    assert criticality_first(box, np.c_[np.array(POS), np.zeros(4)], classes, 3) == [2, 0, 3]  # soft before durable
+    assert criticality_first(box, np.c_[np.array(POS), np.zeros(4)], classes, 4) == [2, 0, 3, 1]
+    sel = PrivilegedCriticality()
+    sel.reset(view(0, POS, classes), 3)
+    assert sel.select(view(0, POS, classes), 3) == [2, 0, 3]
+    # where privileged tops up with the nearest object of any class, the durable one (1) can take a soft one's slot
+    far_soft = ["fragile", "durable", "durable", "soft"]
+    moved = [[0.9, 0.0], [0.2, 0.0], [0.0, 0.5], [0.0, 0.6]]
+    assert PrivilegedSelector().select(view(0, moved, far_soft), 2) == [0, 1]
+    assert PrivilegedCriticality().select(view(0, moved, far_soft), 2) == [0, 3]
+    with pytest.raises(ValueError, match="privileged_classes"):
+        PrivilegedCriticality().select(view(0, POS), 2)
+
+
+def test_display_names_never_call_the_offline_classifier_a_vlm():
+    from safemanip.evaluation.registry import display_name
+    for name in ("semantic", "dynamic-vlm", "vlm"):
+        offline = display_name(name, "semantic:class_examples_v6.json")
+        assert "VLM" not in offline and "offline names" in offline
+        assert display_name(name, "openai:llava:13b").endswith("(openai: llava:13b)")
+    assert display_name("dynamic-knn") == "dynamic-knn"
 
 
 def test_privileged_repicks_on_the_dynamic_schedule():

@@ -317,7 +317,7 @@ def test_segment_distance():
 
 def test_risk_ranking_follows_the_predicted_path_and_prefers_fragile():
     from safemanip.semantics.base import ObjectQuery
-    backend = toy_backend(box_half_width_m=0.0)
+    backend = toy_backend(box_half_width_m=0.0, ranking="risk")
     # box at the origin moving +x at 0.5 m/s: the wine glass (0.40, 0.05) lies on the swept path, the
     # soda can (-0.30, 0) is behind the box; at rest the ranking is purely by proximity
     # the toy sheep (durable) sits right on the path but is harmless; the red mug is 0.2 m off the path
@@ -327,8 +327,35 @@ def test_risk_ranking_follows_the_predicted_path_and_prefers_fragile():
     rest = make_view()
     ids_rest = backend.select_objects(ObjectQuery(view=rest, k=1, order=[0, 1, 2, 3])).ids
     assert ids_rest == [0]  # mug at 0.21 m beats the sheep at 0.15 m because contact with it is worse
-    uniform = toy_backend(class_weights={"fragile": 1, "soft": 1, "durable": 1})
+    uniform = toy_backend(class_weights={"fragile": 1, "soft": 1, "durable": 1}, ranking="risk")
     assert uniform.select_objects(ObjectQuery(view=rest, k=1, order=[0, 1, 2, 3])).ids == [1]
+
+
+def test_criticality_ranking_puts_every_fragile_object_first_then_soft_then_durable():
+    """The default ranking (the ``semantic`` selector): the toy sheep right beside the box never outranks the red mug
+    or the wine glass, whatever its distance; the next class fills only the slots the fragile ones leave."""
+    from safemanip.semantics.base import ObjectQuery
+    backend = toy_backend()
+    assert backend.ranking == "criticality"
+    view = make_view(vel=(0.5, 0.0))
+    assert backend.select_objects(ObjectQuery(view=view, k=1, order=[0, 1, 2, 3])).ids == [0]  # mug 0.21 m, glass 0.40
+    assert backend.select_objects(ObjectQuery(view=view, k=2, order=[0, 1, 2, 3])).ids == [0, 3]
+    assert backend.select_objects(ObjectQuery(view=view, k=3, order=[0, 1, 2, 3])).ids == [0, 3, 2]  # then the can
+    answer = backend.select_objects(ObjectQuery(view=view, k=4, order=[0, 1, 2, 3]))
+    assert answer.ids == [0, 3, 2, 1] and "fragile" in answer.explanation
+    with pytest.raises(ValueError, match="ranking"):
+        toy_backend(ranking="nearest")
+
+
+def test_material_cues_decide_first_the_strictest_material_winning():
+    from safemanip.semantics.semantic_backend import material_class
+    assert material_class("glass jar of jam") == "fragile"  # glass beats whatever else the name says
+    assert material_class("Wooden Spoon") == "durable" and material_class("plastic cup") == "soft"
+    assert material_class("plush bear with a glass eye") == "fragile"
+    assert material_class("red mug") is None and material_class("glassy-eyed doll") is None  # whole words only
+    cued = SemanticBackend(embedder=toy_embedder, examples_file="v6")
+    assert cued.decision["material_cues"] is True and SemanticBackend(embedder=toy_embedder,
+                                                                       examples_file="v3").decision["material_cues"] is False
 
 
 def test_predicted_segment_uses_recent_path_when_velocity_is_zero():
@@ -373,7 +400,7 @@ def test_v3_additions_avoid_the_words_of_the_names_v2_got_wrong():
 
 def test_decision_rule_is_versioned_data():
     from safemanip.semantics.semantic_backend import decide_classes, load_decision_rule
-    assert load_decision_rule("v1") == {"rule": "argmax", "margin": 0.0}
+    assert load_decision_rule("v1") == {"rule": "argmax", "margin": 0.0, "material_cues": False}
     v2 = load_decision_rule("v2")
     assert v2["rule"] == "strictest_within_margin" and 0.0 < v2["margin"] < 0.1
     v3 = load_decision_rule("v3")

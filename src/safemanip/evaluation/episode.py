@@ -12,6 +12,10 @@ Outcome categories (``CATEGORIES``), one per episode:
   split by whether it was among the objects the policy saw), soft_contact (a soft object hit faster
   than the speed limit; whether it was selected is in the record's ``selected`` column), timeout,
   unstable (the simulation blew up; neither a success nor a safety violation).
+
+Each record also keeps the selection history (``selections``: the ids at every step where they changed) and how
+often, at the queries of the shared schedule, the selection equalled the reference oracle's, the k nearest
+objects by true criticality (``reference_agreed`` of ``reference_queries``).
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ import numpy as np
 
 from safemanip.selection.base import ConstraintSelector, ObjectSelector
 from safemanip.selection.reducer import Reducer
+from safemanip.selection.selectors import DEFAULT_INTERVAL, criticality_first
 from safemanip.selection.view import CLASS_OF_CONSTRAINT, EnvViewBuilder
 
 CATEGORIES = ("success", "top_box", "out_of_workspace", "collision_unselected", "collision_selected",
@@ -92,6 +97,9 @@ def run_episode(env, actor: Callable[[np.ndarray], np.ndarray], reducer: Reducer
     changes: list[tuple[int, tuple[int, ...]]] = []
     ids: list[int] = []
     t = 0
+    # how often the selection equals the reference oracle's (the k nearest by true criticality, ``criticality_first``)
+    # at the queries of the shared schedule (every DEFAULT_INTERVAL steps): the selector's agreement, per episode
+    reference_queries = reference_agreed = 0
     while True:
         ids = [int(i) for i in object_selector.select(view, k)] if want else []
         if (len(ids) > want if up_to else len(ids) != want) or len(set(ids)) != len(ids) \
@@ -101,6 +109,10 @@ def run_episode(env, actor: Callable[[np.ndarray], np.ndarray], reducer: Reducer
         key = tuple(sorted(ids))
         if not changes or changes[-1][1] != key:
             changes.append((t, key))
+        if want and t % DEFAULT_INTERVAL == 0 and view.privileged_classes is not None:
+            reference = criticality_first(view.box_position, view.positions, view.privileged_classes, want)
+            reference_queries += 1
+            reference_agreed += tuple(sorted(reference)) == key
         obs = reducer(state, ids, assigned)
         action = actor(obs[None])[0]
         _, _, terminated, truncated, info = env.step(action)
@@ -117,7 +129,8 @@ def run_episode(env, actor: Callable[[np.ndarray], np.ndarray], reducer: Reducer
         "object_fallbacks": _stat(object_selector, "fallbacks") - q0[1],
         "constraint_queries": _stat(constraint_selector, "queries") - q0[2],
         "constraint_fallbacks": _stat(constraint_selector, "fallbacks") - q0[3],
-        "vlm_breaker_open": _breaker_open(object_selector, constraint_selector)})
+        "vlm_breaker_open": _breaker_open(object_selector, constraint_selector),
+        "reference_queries": reference_queries, "reference_agreed": reference_agreed})
 
 
 def run_planner_episode(env, planner, seed: int) -> dict:
@@ -134,7 +147,7 @@ def run_planner_episode(env, planner, seed: int) -> dict:
     everything = tuple(range(len(env.names)))
     return _record(env, info, seed, list(everything), list(env.constraints), [(0, everything)], kind,
                    {"object_queries": 0, "object_fallbacks": 0, "constraint_queries": 0, "constraint_fallbacks": 0,
-                    "vlm_breaker_open": ""})
+                    "vlm_breaker_open": "", "reference_queries": 0, "reference_agreed": 0})
 
 
 def _record(env, info: dict, seed: int, ids: list[int], assigned: list[str], changes: list, kind: str,

@@ -215,6 +215,10 @@ def vlm_option_problems(req, uses_vlm: bool) -> list[str]:
                         "max-failures limits apply to --vlm-backend openai; the semantic backend is offline")
     if req.vlm_cache_only and not req.vlm_cache:
         problems.append("--vlm-cache-only needs --vlm-cache DIR (the folder of stored answers)")
+    if req.vlm_cache and not req.vlm_cache_only and uses_vlm and vlm_backend == "openai":
+        from safemanip.semantics.cache import cache_dir_problems  # answers are stored: the folder must take them
+
+        problems += cache_dir_problems(req.vlm_cache)
     return problems
 
 
@@ -415,6 +419,16 @@ def _by_scene_kind(records: list[dict]) -> dict:
     return out
 
 
+def _agreement(records: list[dict]) -> dict | None:
+    """Share of selection queries at which the selection equalled the k nearest objects by true criticality
+    (``episode.run_episode``), over all episodes; None when nothing was compared (the planner, k = 0)."""
+    queries = int(sum(int(r.get("reference_queries") or 0) for r in records))
+    if not queries:
+        return None
+    agreed = int(sum(int(r.get("reference_agreed") or 0) for r in records))
+    return {"queries": queries, "agreed": agreed, "rate": agreed / queries}
+
+
 def summarize(records: list[dict]) -> dict:
     n = len(records)
     cats = Counter(r["category"] for r in records)
@@ -435,6 +449,7 @@ def summarize(records: list[dict]) -> dict:
         "selector_queries": {key: int(sum(r[key] for r in records)) for key in
                              ("object_queries", "object_fallbacks", "constraint_queries", "constraint_fallbacks")},
         "vlm_breaker_open_episodes": int(sum(r.get("vlm_breaker_open") == "yes" for r in records)),
+        "reference_agreement": _agreement(records),
         "by_scene_kind": _by_scene_kind(records),
     }
 
@@ -472,6 +487,10 @@ def format_summary(summary: dict, title: str) -> str:
     if q["object_queries"] or q["constraint_queries"]:
         lines.append(f"semantic queries: objects {q['object_queries']} ({q['object_fallbacks']} fell back), "
                      f"constraints {q['constraint_queries']} ({q['constraint_fallbacks']} fell back)")
+    agreement = summary.get("reference_agreement")
+    if agreement:
+        lines.append(f"selection equal to the reference (nearest by true criticality) at {100 * agreement['rate']:.1f} % "
+                     f"of {agreement['queries']} queries")
     if summary.get("vlm_breaker_open_episodes"):
         lines.append(f"VLM circuit breaker open (fallback selectors answered) in {summary['vlm_breaker_open_episodes']} "
                      f"of {n} episodes: the server failed repeatedly or a time budget ran out")
@@ -510,12 +529,13 @@ def write_records(out: Path, records: list[dict], summary: dict) -> None:
 def read_records(path: Path) -> list[dict]:
     """Rows of an episodes.csv with numbers turned back into ints (for rebuilding tables)."""
     ints = ("seed", "length", "selection_changes", "object_queries", "object_fallbacks", "constraint_queries",
-            "constraint_fallbacks")
+            "constraint_fallbacks", "reference_queries", "reference_agreed")
     with open(path, newline="") as f:
         rows = list(csv.DictReader(f))
     for r in rows:
         for key in ints:
-            r[key] = int(r[key])
+            if key in r:  # the reference columns are absent in tables written before they were added
+                r[key] = int(r[key])
         if "box_speed" in r:  # absent in tables written before success meant placed
             r["box_speed"] = float(r["box_speed"])
         r["object_id"] = int(r["object_id"]) if r["object_id"] != "" else ""

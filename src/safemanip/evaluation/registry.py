@@ -12,8 +12,8 @@ from typing import Callable
 
 from safemanip.selection.base import ConstraintSelector, ObjectSelector
 from safemanip.selection.selectors import (DEFAULT_INTERVAL, DEFAULT_RADIUS, ConservativeConstraints, DynamicKNN,
-                                           DynamicRadius, FullSelector, GroundTruthConstraints, PrivilegedSelector,
-                                           StaticKNN)
+                                           DynamicRadius, FullSelector, GroundTruthConstraints, PrivilegedCriticality,
+                                           PrivilegedSelector, StaticKNN)
 
 
 @dataclass(frozen=True)
@@ -40,23 +40,27 @@ class SelectorOptions:
     """Consecutive failed openai queries that open the circuit breaker (None: 5)."""
 
 
-def _vlm_backend(opts: SelectorOptions):
+def _vlm_backend(opts: SelectorOptions, ranking: str = "criticality"):
+    """The semantic backend; ``ranking`` is how the offline one ranks objects (a VLM ranks them itself)."""
     from safemanip.semantics.commands import make_backend
     from safemanip.semantics.guard import DEFAULT_MAX_FAILURES, GuardedBackend
 
     backend = make_backend(opts.vlm_backend, model=opts.vlm_model, base_url=opts.vlm_base_url,
                            cache_dir=opts.vlm_cache, cache_mode="cache_only" if opts.vlm_cache_only else "readwrite",
-                           timeout_s=opts.vlm_timeout or 30.0)
+                           timeout_s=opts.vlm_timeout or 30.0, ranking=ranking)
     if opts.vlm_backend != "openai":  # the offline classifier neither fails nor waits
         return backend
     return GuardedBackend(backend, max_failures=opts.vlm_max_failures or DEFAULT_MAX_FAILURES,
                           episode_budget_s=opts.vlm_episode_budget, run_budget_s=opts.vlm_run_budget)
 
 
-def _dynamic_vlm(opts: SelectorOptions) -> ObjectSelector:
-    from safemanip.semantics.selectors import DynamicVLMSelector
+def _semantic(ranking: str, name: str):
+    def make(opts: SelectorOptions) -> ObjectSelector:
+        from safemanip.semantics.selectors import DynamicVLMSelector
 
-    return DynamicVLMSelector(_vlm_backend(opts), query_interval=opts.interval, history=opts.vlm_history)
+        return DynamicVLMSelector(_vlm_backend(opts, ranking), query_interval=opts.interval,
+                                  history=opts.vlm_history, name=name)
+    return make
 
 
 def _vlm_constraints(opts: SelectorOptions) -> ConstraintSelector:
@@ -70,8 +74,10 @@ OBJECT_SELECTORS: dict[str, Callable[[SelectorOptions], ObjectSelector]] = {
     "dynamic-knn": lambda o: DynamicKNN(o.interval),
     "dynamic-radius": lambda o: DynamicRadius(o.interval, o.radius),
     "privileged": lambda o: PrivilegedSelector(o.interval),
+    "privileged-criticality": lambda o: PrivilegedCriticality(o.interval),
     "full": lambda o: FullSelector(),
-    "dynamic-vlm": _dynamic_vlm,
+    "semantic": _semantic("criticality", "semantic"),
+    "dynamic-vlm": _semantic("risk", "dynamic-vlm"),
 }
 
 CONSTRAINT_SELECTORS: dict[str, Callable[[SelectorOptions], ConstraintSelector]] = {
@@ -80,8 +86,25 @@ CONSTRAINT_SELECTORS: dict[str, Callable[[SelectorOptions], ConstraintSelector]]
     "vlm": _vlm_constraints,
 }
 
-USES_VLM = {"dynamic-vlm", "vlm"}
+USES_VLM = {"semantic", "dynamic-vlm", "vlm"}
 """Names whose factory builds a semantic backend (so the --vlm-* options apply)."""
+
+
+_OFFLINE_NAMES = {"semantic": "semantic, criticality first (offline names)",
+                  "dynamic-vlm": "semantic, risk-ranked (offline names; earlier rule)",
+                  "vlm": "semantic constraints (offline names)"}
+_VLM_NAMES = {"semantic": "VLM", "dynamic-vlm": "VLM", "vlm": "ConstraintVLM"}
+_ORACLE_NAMES = {"privileged": "privileged (nearest fragile)",
+                 "privileged-criticality": "privileged (nearest by true criticality)"}
+
+
+def display_name(name: str, vlm: str | None = None) -> str:
+    """How tables, figures and findings name an object or constraint selector: by what produced its answers, so
+    that a row made by the offline name classifier is never called a VLM. ``vlm`` is the cell's backend identity
+    (``evaluation.sweep.vlm_identity``: 'semantic:FILE' offline, 'openai:MODEL' for a served model)."""
+    if name in _VLM_NAMES and vlm and vlm.startswith("openai:"):
+        return f"{_VLM_NAMES[name]} (openai: {vlm.split(':', 1)[1]})"
+    return _OFFLINE_NAMES.get(name) or _ORACLE_NAMES.get(name) or name
 
 
 def make_object_selector(name: str, options: SelectorOptions | None = None) -> ObjectSelector:

@@ -18,8 +18,12 @@ Object selectors (``OBJECT_SELECTORS``)
   ``privileged``   the k nearest objects whose ground-truth class is fragile (re-picked on the same
                    schedule as dynamic-knn), then the nearest others if there are fewer than k fragile
                    ones. Reads ``SceneView.privileged_classes``; an oracle, not a deployable method;
+  ``privileged-criticality`` the same oracle by true criticality: fragile, then soft, then durable
+                   (``criticality_first``); the reference for semantic selection with soft objects;
   ``full``         every object in id order: the layout a k == N full-state policy was trained on;
-  ``dynamic-vlm``  ``semantics.selectors.DynamicVLMSelector`` on a semantic or OpenAI-compatible backend.
+  ``semantic``     ``semantics.selectors.DynamicVLMSelector``: a VLM (OpenAI-compatible backend), or offline the
+                   classes decided from the names, ranked by ``criticality_first``;
+  ``dynamic-vlm``  the same selector; offline, the earlier risk ranking (kept by name, see docs/semantics.md).
 
 Constraint selectors (``CONSTRAINT_SELECTORS``), each assigning one type per object at t = 0:
   ``conservative`` no_contact for every object (the paper's F^conser);
@@ -114,6 +118,40 @@ class PrivilegedSelector(DynamicKNN):
             others = [i for i in range(len(view.names)) if i not in set(ids)]
             ids += nearest_ids(view.box_position, view.positions, k - len(ids), candidates=others)
         return ids
+
+
+CRITICALITY = ("fragile", "soft", "durable")
+"""Semantic classes from most to least safety-critical: a fragile object must not be touched, a soft one only
+gently, a durable one may be pushed."""
+
+
+def criticality_first(box_position: np.ndarray, positions: np.ndarray, classes, k: int) -> list[int]:
+    """The k most safety-critical objects: every fragile one before any soft one before any durable one, nearest
+    to the held box first within a class (``nearest_ids``). The next class fills the k slots only when the more
+    critical ones are fewer than k. One rule for the privileged reference (``PrivilegedCriticality``, true
+    classes) and the semantic selector (``semantics.semantic_backend``, the classes it decided)."""
+    ids: list[int] = []
+    for cls in CRITICALITY:
+        if len(ids) >= k:
+            break
+        members = [i for i, c in enumerate(classes) if c == cls]
+        ids += nearest_ids(box_position, positions, k - len(ids), candidates=members)
+    return ids
+
+
+class PrivilegedCriticality(DynamicKNN):
+    """Oracle reference for semantic selection: ``criticality_first`` on the ground-truth classes (the k nearest
+    fragile objects, then the nearest soft ones, then the nearest durable ones), on the dynamic-knn schedule.
+
+    ``privileged`` tops up with the nearest objects of any class; with soft objects in the scene that lets a durable
+    one take a slot while a soft one nearby goes unseen (Table II)."""
+
+    name = "privileged-criticality"
+
+    def _pick(self, view: SceneView, k: int) -> list[int]:
+        if view.privileged_classes is None:
+            raise ValueError("the privileged-criticality selector needs SceneView.privileged_classes")
+        return criticality_first(view.box_position, view.positions, view.privileged_classes, k)
 
 
 class DynamicRadius(DynamicKNN):

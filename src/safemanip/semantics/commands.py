@@ -31,15 +31,16 @@ NAME_VARIANTS = ("{name}", "the {name}", "a {name}", "{Name}", "{name} on the ta
 
 def make_backend(backend_name: str, *, model: str | None = None, base_url: str | None = None,
                  cache_dir: str | None = None, cache_mode: str = "readwrite", timeout_s: float = 30.0,
-                 attempts: int = 3, semantic_examples: str | None = None) -> Backend:
+                 attempts: int = 3, semantic_examples: str | None = None, ranking: str = "criticality") -> Backend:
     """Build a backend by name: ``semantic`` (offline, default) or ``openai`` (any compatible server).
 
     ``semantic_examples`` picks the semantic backend's example set and decision rule ("v1", "v2", "v3" or a
-    file name in ``semantics/data``; default: the newest).
+    file name in ``semantics/data``; default: the newest). ``ranking``: how the offline backend ranks objects
+    (``SemanticBackend``); a VLM ranks them itself.
     """
     if backend_name == "semantic":
         from safemanip.semantics.semantic_backend import DEFAULT_EXAMPLES, SemanticBackend
-        return SemanticBackend(examples_file=semantic_examples or DEFAULT_EXAMPLES)
+        return SemanticBackend(examples_file=semantic_examples or DEFAULT_EXAMPLES, ranking=ranking)
     if backend_name == "openai":
         from safemanip.semantics.openai_backend import OpenAIBackend
         cache = ResponseCache(cache_dir, mode=cache_mode) if cache_dir else None
@@ -67,7 +68,7 @@ PAPER_OBJECTS = ("toy squirrel", "toy sheep", "toy android", "red mug", "blue mu
                  "plant pot")
 """The eight objects of the paper's experiments (its Tables III and IV are over these)."""
 HELDOUT_FILES = {"heldout": "heldout_names_v1.json", "heldout-v2": "heldout_names_v2.json",
-                 "heldout-v3": "heldout_names_v3.json"}
+                 "heldout-v3": "heldout_names_v3.json", "heldout-v4": "heldout_names_v4.json"}
 """The shipped held-out name lists (``semantics/data/``), by object-set name."""
 OBJECT_SETS = ("catalog", "paper", *HELDOUT_FILES)
 

@@ -31,17 +31,31 @@ from typing import Callable, Sequence
 import numpy as np
 
 from safemanip.scene.catalog import CONSTRAINT_OF_CLASS, SEMANTIC_CLASSES
+from safemanip.selection.selectors import criticality_first
 from safemanip.semantics.base import (BackendError, ConstraintAnswer, ConstraintQuery, ObjectAnswer, ObjectQuery,
                                       object_label)
 
 Embedder = Callable[[list[str]], np.ndarray]
 """Maps names to an (n, d) array of embeddings (any scale; rows are L2-normalised by the caller)."""
 
-DEFAULT_EXAMPLES = "class_examples_v3.json"
-"""v3 stays the default: v4 was measured once on heldout_names_v2.json and the catalog and did not meet the
-unsafe-error target there (docs/semantics.md); ``--semantic-examples v4`` selects it."""
+DEFAULT_EXAMPLES = "class_examples_v6.json"
+"""v6 (default): v3's examples and logistic rule with the material cues (``MATERIAL_CUES``) deciding first. v4 and v5
+were measured once on held-out lists and did not meet the unsafe-error target (docs/semantics.md);
+``--semantic-examples v3`` reproduces the earlier default."""
 EXAMPLE_FILES = {"v1": "class_examples_v1.json", "v2": "class_examples_v2.json", "v3": "class_examples_v3.json",
-                 "v4": "class_examples_v4.json", "v5": "class_examples_v5.json"}
+                 "v4": "class_examples_v4.json", "v5": "class_examples_v5.json", "v6": "class_examples_v6.json"}
+MATERIAL_CUES = {
+    "fragile": ("glass", "glasses", "glassware", "crystal", "porcelain", "ceramic", "ceramics", "china", "stoneware",
+                "earthenware", "terracotta", "pottery"),
+    "soft": ("plastic", "plastics"),
+    "durable": ("wood", "wooden", "bamboo", "metal", "metallic", "steel", "iron", "aluminium", "aluminum", "brass",
+                "copper", "rubber", "silicone", "foam", "plush", "stuffed", "fabric", "cloth", "cotton", "wool", "woolen",
+                "woollen", "felt", "knit", "knitted", "leather", "denim", "canvas", "nylon", "fleece", "velvet"),
+}
+"""Words that name a material (or a plush/stuffed make) and the class it implies, by the paper's constraint prompt:
+glass and ceramics break (no_contact), plastic containers may be pushed gently (soft_contact), wood, metal, rubber,
+foam and textiles take any contact. Written before any held-out list was measured with them; nothing fitted."""
+_CUE_CLASS = {word: cls for cls, words in MATERIAL_CUES.items() for word in words}
 """Shipped example-set versions (``--semantic-examples v1`` / ``v2`` reproduce the earlier classifiers)."""
 DECISION_RULES = ("argmax", "strictest_within_margin", "logistic_strictest_within_margin", "logistic_fragile_threshold")
 LOGISTIC_DEFAULTS = {"l2": 0.1, "scale": 10.0, "iterations": 300, "learning_rate": 0.5}
@@ -49,6 +63,11 @@ LOGISTIC_DEFAULTS = {"l2": 0.1, "scale": 10.0, "iterations": 300, "learning_rate
 # How bad a contact is, per class: fragile objects break, soft ones tolerate a nudge, durable ones
 # can take a hit. Only the ratios matter for the ranking.
 DEFAULT_CLASS_WEIGHTS = {"fragile": 1.0, "soft": 0.5, "durable": 0.1}
+RANKINGS = ("criticality", "risk")
+"""How the offline backend ranks objects for the k slots. ``criticality`` (the ``semantic`` selector): the decided
+classes first, fragile before soft before durable, nearest within a class. ``risk`` (the earlier rule, kept for the
+``dynamic-vlm`` selector): class *probabilities* x harm weights x exp(-clearance to the predicted path / 0.10 m),
+which let a durable object 10-20 cm nearer the path outrank a fragile one (docs/semantics.md)."""
 
 _MODEL_LOCK = threading.Lock()
 
@@ -142,6 +161,10 @@ def load_decision_rule(filename: str = DEFAULT_EXAMPLES) -> dict:
     if not 0.0 <= margin < 1.0:
         raise ValueError(f"{filename}: decision margin must be in [0, 1), got {margin}")
     decision["margin"] = margin if decision["rule"] != "argmax" else 0.0
+    cues = decision.get("material_cues", False)
+    if not isinstance(cues, bool):
+        raise ValueError(f"{filename}: its decision block's material_cues must be true or false")
+    decision["material_cues"] = cues
     if decision["rule"] == "logistic_fragile_threshold":
         threshold = number("fragile_threshold", -1)
         if not 0.0 < threshold < 1.0:
@@ -151,6 +174,13 @@ def load_decision_rule(filename: str = DEFAULT_EXAMPLES) -> dict:
         for key, default in LOGISTIC_DEFAULTS.items():
             decision[key] = number(key, default)
     return decision
+
+
+def material_class(name: str) -> str | None:
+    """The class the materials a name names imply (``MATERIAL_CUES``), the strictest when it names several
+    ("glass jar of jam": fragile; "wooden spoon": durable), or None when it names none."""
+    found = {_CUE_CLASS[w] for w in re.findall(r"[a-z]+", name.lower()) if w in _CUE_CLASS}
+    return next((c for c in SEMANTIC_CLASSES if c in found), None)
 
 
 def decide_classes(similarities: np.ndarray, margin: float) -> np.ndarray:
@@ -350,9 +380,12 @@ class SemanticBackend:
                  horizon_s: float = 0.75, box_half_width_m: float = 0.06,
                  risk_length_m: float = 0.10, class_weights: dict[str, float] | None = None,
                  task_direction: Sequence[float] | None = None, assumed_speed_mps: float = 0.3,
-                 min_speed_mps: float = 0.02) -> None:
+                 min_speed_mps: float = 0.02, ranking: str = "criticality") -> None:
         if temperature <= 0:
             raise ValueError(f"temperature must be > 0, got {temperature}")
+        if ranking not in RANKINGS:
+            raise ValueError(f"ranking must be one of {RANKINGS}, got {ranking!r}")
+        self.ranking = ranking
         self.name = "semantic"
         self._embed = embedder if embedder is not None else minilm_embedder()
         if examples is not None:
@@ -390,7 +423,7 @@ class SemanticBackend:
                 "margin": self.margin,
                 "temperature": self.temperature, "horizon_s": self.horizon_s,
                 "box_half_width_m": self.box_half_width_m, "risk_length_m": self.risk_length_m,
-                "class_weights": self.class_weights}
+                "class_weights": self.class_weights, "ranking": self.ranking}
 
     # ----------------------------------------------------------------- classification
 
@@ -447,7 +480,8 @@ class SemanticBackend:
         return np.stack([self._sims[n] for n in names]) if len(names) else np.zeros((0, 3))
 
     def classify(self, names: Sequence[str]) -> list[str]:
-        """Semantic class per name under the decision rule (argmax, or the strictest class within the margin)."""
+        """Semantic class per name under the decision rule (argmax, or the strictest class within the margin); with
+        the file's ``material_cues``, a name that names a material takes that material's class (``material_class``)."""
         if not len(names):
             return []
         if self.decision["rule"] == "logistic_fragile_threshold":
@@ -455,7 +489,10 @@ class SemanticBackend:
                                               self.margin)
         else:
             chosen = decide_classes(self.class_similarities(names), self.margin)
-        return [SEMANTIC_CLASSES[i] for i in chosen]
+        classes = [SEMANTIC_CLASSES[i] for i in chosen]
+        if self.decision.get("material_cues"):
+            classes = [material_class(n) or c for n, c in zip(names, classes)]
+        return classes
 
     def assign_constraints(self, query: ConstraintQuery) -> ConstraintAnswer:
         probs = self.class_probabilities(query.names)
@@ -499,6 +536,8 @@ class SemanticBackend:
         n = query.n_select
         if n <= 0:
             return ObjectAnswer(ids=[])
+        if self.ranking == "criticality":
+            return self._select_by_criticality(query, n)
         score, clearance, harm = self.risk_scores(query)
         # sort by score, ties by clearance; lexsort's last key is the primary one
         order = np.lexsort((clearance, -score))[:n]
@@ -507,6 +546,21 @@ class SemanticBackend:
         explanation = "; ".join(f"{object_label(i, names[i])}: risk {score[i]:.3f} (clearance {clearance[i]:.3f} m, "
                                 f"harm {harm[i]:.2f})" for i in ids)
         return ObjectAnswer(ids=ids, explanation=explanation)
+
+
+    def _select_by_criticality(self, query: ObjectQuery, n: int) -> ObjectAnswer:
+        """What the paper's VLM is asked to do ("among the objects that might come in contact, choose the more
+        fragile ones"): the classes this backend decided (the stricter class when unsure), ranked by
+        ``criticality_first``: every object it calls fragile before any it calls soft before any durable one,
+        nearest to the held box within a class."""
+        view = query.view
+        classes = self.classify(view.names)
+        ids = criticality_first(np.asarray(view.box_position, float), np.asarray(view.positions, float), classes, n)
+        box = np.asarray(view.box_position, float)[:2]
+        explanation = "; ".join(
+            f"{object_label(i, view.names[i])}: {classes[i]}, "
+            f"{float(np.hypot(*(np.asarray(view.positions[i], float)[:2] - box))):.3f} m from the box" for i in ids)
+        return ObjectAnswer(ids=[int(i) for i in ids], explanation=explanation)
 
 
 def _softmax(x: np.ndarray) -> np.ndarray:
