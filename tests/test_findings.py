@@ -1,32 +1,70 @@
-"""The verdict rules of results/findings.py: a method is better only if its pooled interval and its worst training
-seed both clear the other's; a finding holds only if its method wins somewhere and loses nowhere."""
+"""The verdict rules of results/findings.py: a method is better only if the seed-level (cluster bootstrap) interval of
+the difference lies above 0 and its worst training seed clears the other's best; a finding holds only if its method
+wins somewhere and loses nowhere."""
 
 from __future__ import annotations
 
 import importlib.util
 from pathlib import Path
 
+from safemanip.evaluation.stats import wilson_interval
+from safemanip.evaluation.sweep import _pooled_entry
+
 spec = importlib.util.spec_from_file_location("findings", Path(__file__).parents[1] / "results" / "findings.py")
 findings = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(findings)
 
 
-def method(rate, lo, hi, spread=None):
-    e = {"rate": rate, "ci95": [lo, hi], "count": 0}
-    if spread:
-        e.update(spread=list(spread), seeds=3)
-    return {"summary": {"success": e, "categories": {"top_box": e}, "seeds": [0, 1, 2] if spread else [0]}, "cell": {}}
+def method(*rates, n=1000):
+    """A method's result pooled over training seeds of these success rates (n episodes each), as pool_seeds makes."""
+    counts = [round(r * n) for r in rates]
+    e = _pooled_entry([{"rate": c / n} for c in counts], counts, [n] * len(counts))
+    return {"summary": {"success": e, "categories": {"top_box": e}, "episodes": n * len(rates),
+                        "seeds": list(range(len(rates)))}, "cell": {}}
 
 
-def test_a_method_is_better_only_when_interval_and_seeds_both_clear():
-    high = method(0.8, 0.77, 0.83, (0.75, 0.85))
-    low = method(0.5, 0.47, 0.53, (0.45, 0.55))
+def test_a_method_is_better_when_the_seed_level_difference_and_its_seeds_both_clear():
+    high, low = method(0.80, 0.81, 0.82), method(0.50, 0.51, 0.52)
     assert findings.compare(high, low) == "win" and findings.compare(low, high) == "loss"
-    overlapping_seeds = method(0.8, 0.77, 0.83, (0.5, 0.95))  # one seed as bad as the other method's best
-    assert findings.compare(overlapping_seeds, low) == "tie"
-    close = method(0.52, 0.49, 0.55, (0.50, 0.54))
-    assert findings.compare(close, low) == "tie"
     assert findings.compare(low, high, "top_box", lower_is_better=True) == "win"  # fewer violations is better
+    assert findings.compare(high, low, "top_box", lower_is_better=True) == "loss"
+    assert findings.compare(method(0.51, 0.52, 0.53), low) == "tie"
+
+
+def test_seeds_that_agree_separate_where_the_two_pooled_intervals_overlap():
+    a, b = method(0.825, 0.825, 0.825), method(0.80, 0.80, 0.80)
+    assert a["summary"]["success"]["ci95"][0] < b["summary"]["success"]["ci95"][1]  # the old rule: a tie
+    assert findings.difference(a, b)[0] > 0
+    assert findings.compare(a, b) == "win" and findings.compare(b, a) == "loss"
+
+
+def test_one_good_seed_does_not_win_a_cell_the_pooled_interval_would_give():
+    a, b = method(0.80, 0.80, 0.86), method(0.79, 0.79, 0.79)
+    assert a["summary"]["success"]["ci95"][0] > b["summary"]["success"]["ci95"][1]  # pooled intervals disjoint
+    assert findings.difference(a, b)[0] < 0
+    assert findings.compare(a, b) == "tie"
+
+
+def test_the_worst_seed_must_still_clear_the_others_best():
+    # RARL against Vanilla at N = 1 (Fig. 4): the bootstrapped difference is above 0, but one RARL seed is below
+    # one Vanilla seed
+    a, b = method(0.979, 0.990, 0.996), method(0.971, 0.976, 0.981)
+    assert findings.difference(a, b)[0] > 0
+    assert findings.compare(a, b) == "tie"
+
+
+def test_a_single_policy_compares_as_one_seed():
+    count = 700
+    single = {"summary": {"success": {"count": count, "rate": count / 1000, "ci95": list(wilson_interval(count, 1000))},
+                          "categories": {}, "episodes": 1000}, "cell": {}}
+    assert findings.per_seed(single) == ([700], [1000])
+    assert findings.compare(method(0.80, 0.81, 0.82), single) == "win"
+    assert findings.compare(single, method(0.69, 0.70, 0.71)) == "tie"
+
+
+def test_compare_is_deterministic():
+    a, b = method(0.70, 0.78, 0.74), method(0.69, 0.71, 0.73)
+    assert findings.difference(a, b) == findings.difference(a, b)
 
 
 def test_verdicts():
@@ -73,13 +111,13 @@ def test_check_flags_a_stale_results_page_and_writes_nothing(tmp_path, monkeypat
 
 def test_full_state_finding_judges_each_way_of_training_pi_k_apart(monkeypatch):
     def cell(k, n, rate, variant="", selector="dynamic-knn"):
-        r = method(rate, rate - 0.02, rate + 0.02, (rate - 0.01, rate + 0.01))
+        r = method(rate - 0.03, rate, rate + 0.03)
         r["cell"] = {"k": k, "n_objects": n, "variant": variant, "selector": "full" if k == n else selector}
         return r
 
     policies = [cell(5, 5, 0.90), cell(6, 6, 0.86)]
     for n in (5, 6):
-        policies += [cell(2, n, 0.70), cell(4, n, 0.88), cell(2, n, 0.86, "selaware"), cell(4, n, 0.95, "selaware")]
+        policies += [cell(2, n, 0.70), cell(4, n, 0.88), cell(2, n, 0.86, "selaware"), cell(4, n, 0.97, "selaware")]
     monkeypatch.setattr(findings, "pooled", lambda folder: (policies, []))
     monkeypatch.setattr(findings, "missing_cells", lambda sweep, wanted: (0, 10))
     _, _, text = findings.finding_fig5_full_state()

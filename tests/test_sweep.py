@@ -114,7 +114,8 @@ def test_render_only_uses_stored_results(tmp_path, name):
     assert "| k |" in table or "| semantics |" in table or "| algorithm |" in table
     policies = [r for r in results if r["cell"]["algorithm"] != "planner"]
     assert table.count("\n| rarl-") + table.count("\n| vanilla-") == len(policies)  # one row per cell and seed
-    assert "(bound)" in table  # the planner's row in the pivot
+    assert "(reference)" in table and "(bound)" not in table  # the planner's row in the pivot: not an upper bound
+    assert "{" in table and "with training seeds as the unit" in table  # the seed-level interval beside Wilson's
     if cfg["figure"] in ("fig4", "fig5", "fig6"):
         png = Path(status["figure"])
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
@@ -209,3 +210,51 @@ def test_only_runs_the_matching_cells_and_a_pattern_matching_nothing_is_an_error
         run_sweep(name, out=str(out), workers=1, progress=False, log=lambda s: None, only=["*-s7__*"])
     with pytest.raises(SweepError, match="drop one of them"):
         run_sweep(name, out=str(out), render_only=True, log=lambda s: None, only=["*"])
+
+
+def test_pooled_cells_carry_a_seed_level_interval_shown_in_braces():
+    from safemanip.evaluation.sweep import markdown_table, pool_seeds
+
+    cfg = load_config("fig4")
+    results = [{"cell": asdict(c), "summary": _fake_summary(rate, n=1000)}
+               for c, rate in zip([c for c in cells_of(cfg) if c.algorithm == "rarl" and c.n_objects == 2],
+                                  (0.70, 0.85, 0.78))]
+    (pooled,) = pool_seeds(results)
+    entry = pooled["summary"]["success"]
+    assert entry["seed_counts"] == [700, 850, 780] and entry["seed_totals"] == [1000] * 3
+    lo, hi = entry["ci95_seeds"]
+    assert lo < entry["ci95"][0] and hi > entry["ci95"][1]  # seeds that disagree: wider than the pooled interval
+    assert f"{{{100 * lo:.1f}, {100 * hi:.1f}}} (70-85)" in markdown_table(cfg, results)
+
+
+def test_a_policy_whose_metadata_contradicts_its_name_is_refused_before_any_cell_runs(tmp_path, capsys):
+    """A shipped k = 2 policy copied under a k = 3 name: the sweep refuses up front with exit 2 and one line, and
+    writes nothing (it used to fail the cell, exit 1 and draw the table)."""
+    from safemanip.cli import main
+    from safemanip.rl.checkpoint import SHIPPED_POLICIES
+
+    good = make_policy(tmp_path / "rarl-k2-conservative.safetensors", 2)
+    wrong = tmp_path / "rarl-k3-conservative-s0.safetensors"
+    wrong.write_bytes((SHIPPED_POLICIES / "rarl-k2-conservative-s0.safetensors").read_bytes())
+    name = _config(tmp_path, [good, str(wrong)])
+    out = tmp_path / "out"
+    assert main(["sweep", name, "--out", str(out), "--workers", "1", "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "no cell run" in err
+    assert f"{wrong}: its metadata says k=2, its name k=3" in err
+    assert not out.exists()
+    # rendering stored cells needs no policy file, and is not refused
+    assert run_sweep(name, out=str(out), render_only=True, log=lambda s: None)["ran"] == []
+
+
+def test_every_identity_field_of_the_cell_id_is_checked(tmp_path):
+    from safemanip.evaluation.sweep import check_policies
+    from safemanip.rl.checkpoint import SHIPPED_POLICIES
+
+    renamed = tmp_path / "vanilla-k2-conservative-selaware-s1.safetensors"
+    renamed.write_bytes((SHIPPED_POLICIES / "rarl-k2-conservative-s0.safetensors").read_bytes())
+    with pytest.raises(SweepError, match="says algorithm=rarl, variant=the paper's way, seed=0, its name "
+                                         "algorithm=vanilla, variant=selaware, seed=1"):
+        check_policies(cells_of(load_config(_config(tmp_path, [str(renamed)]))), "mini")
+    for shipped in ("fig4", "fig5", "table1", "table2"):  # every shipped policy is what its name says
+        check_policies(cells_of(load_config(shipped)), shipped)

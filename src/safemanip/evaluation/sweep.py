@@ -18,7 +18,8 @@ too)::
    "k_equals_n_selector": "full",              optional: selector used when k == N (the full-state
                                                policy sees every object in its training layout)
    "bounds": ["all", "fragile"],               optional: the privileged planner on the same scenes, keeping
-                                               clear of every object or of the fragile ones only
+                                               clear of every object or of the fragile ones only (a
+                                               reference, not an upper bound: a learned policy can beat it)
    "table": {"rows": ["k"], "columns": ["n_objects", "selector"]}}
 
 ``seed`` is the episode seed block (block B = seeds B x 100,000 + i). The shipped sweeps report on blocks
@@ -49,6 +50,7 @@ from dataclasses import asdict, dataclass
 from importlib import resources
 from pathlib import Path
 
+from safemanip.evaluation.registry import display_name
 from safemanip.util.files import OutputLock, atomic_write_text, check_output_dir
 from safemanip.util.procs import Interrupted, stop_on_signals
 
@@ -57,8 +59,8 @@ POLICY_NAME = re.compile(r"(?P<algorithm>[a-z0-9]+)-k(?P<k>\d+)-(?P<constraints>
 """ALGORITHM-kK-CONSTRAINTS[-selaware][-sSEED]: a cell knows its policy's k, how it was trained (``selaware``: with the
 object selector in the loop, ``TrainConfig.scene_objects``) and its training seed from the file name alone."""
 PLANNER_AVOID = ("all", "fragile")
-"""The planner bounds a sweep can add (``bounds``): the privileged planner keeping clear of every object, or of the
-fragile ones only (``control.planner.GridPlanner``)."""
+"""The planner references a sweep can add (``bounds``, the spec key's historical name: they are not upper bounds): the
+privileged planner keeping clear of every object, or of the fragile ones only (``control.planner.GridPlanner``)."""
 SCENE_KEYS = {"layout": str, "gate_share": float, "exit_share": float}
 """What a sweep's ``scenes`` may set: the layout and the shares of gate and exit scenes (``scene.config.SceneConfig``)."""
 FIGURES = ("fig4", "fig5", "fig6", "table")
@@ -485,6 +487,8 @@ def run_sweep(name: str, *, episodes: int | None = None, out: str | None = None,
         problems += ray_address_problems(address)
     if problems:
         raise SweepError("; ".join(problems))
+    if not render_only:
+        check_policies(to_run, cfg["name"])
     status = {"ran": [], "done": [], "skipped": [], "failed": [], "interrupted": None}
     with OutputLock(root):
         if not render_only:
@@ -573,12 +577,7 @@ def _run_cells(cfg, cells, root, status, workers, backend, address, progress, lo
                           episodes=cell.episodes, seed_block=cell.seed, workers=workers, backend=backend,
                           address=address, out=str(cells_dir / cell.id), progress=progress,
                           **scenes, **(vlm if cell.vlm else {}))
-        try:
-            _check_policy_name(cell)
-        except ValueError as err:  # the file's k disagrees with its name: report, go on with the rest
-            status["failed"].append({"cell": cell.id, "error": str(err)})
-            log(f"{tag}: failed: {err}")
-            continue
+        # the file's identity (k, constraints, ...) was checked against its name before any cell ran (check_policies)
         if not _evaluate_cell(req, cell, result_path, status, tag, log):
             return
 
@@ -611,13 +610,48 @@ def _evaluate_cell(req, cell: Cell, result_path: Path, status: dict, tag: str, l
     return True
 
 
-def _check_policy_name(cell: Cell) -> None:
+def _check_policy_name(cell: Cell) -> str | None:
+    """What the policy file's metadata says that its name (and so the cell id) contradicts: k, constraints,
+    algorithm, how it was trained (selection-aware: ``train_config.scene_objects`` set) and the training seed; None if
+    they agree. Fields the metadata does not hold are not checked; a file that cannot be read is left to its cell,
+    which reports it as failed."""
     from safemanip.rl.checkpoint import load_policy
 
-    _, meta = load_policy(cell.policy)  # resolves shipped policies by file name
-    if int(meta.get("k", -1)) != cell.k or meta.get("constraints") != cell.policy_constraints:
-        raise SweepError(f"{cell.policy} holds a k={meta.get('k')} {meta.get('constraints')} policy, but its name "
-                         f"says k={cell.k} {cell.policy_constraints}: rename the file or fix the sweep")
+    try:
+        _, meta = load_policy(cell.policy)  # resolves shipped policies by file name
+    except (OSError, ValueError):
+        return None
+    train = meta.get("train_config") if isinstance(meta.get("train_config"), dict) else {}
+    variant = None if "scene_objects" not in train else "selaware" if train["scene_objects"] else "the paper's way"
+    found = {"k": meta.get("k"), "constraints": meta.get("constraints"), "algorithm": meta.get("algorithm"),
+             "variant": variant, "seed": train.get("seed") if cell.train_seed is not None else None}
+    named = {"k": cell.k, "constraints": cell.policy_constraints, "algorithm": cell.algorithm,
+             "variant": "selaware" if cell.variant == "selaware" else "the paper's way", "seed": cell.train_seed}
+    differ = [f for f in named if found[f] is not None and found[f] != named[f]]
+    if not differ:
+        return None
+    return (f"{cell.policy}: its metadata says {', '.join(f'{f}={found[f]}' for f in differ)}, its name "
+            f"{', '.join(f'{f}={named[f]}' for f in differ)}")
+
+
+def check_policies(cells: list[Cell], name: str) -> None:
+    """Refuse the sweep (SweepError, one line) if any existing policy file of ``cells`` holds a policy other than
+    its name says: the cell id is made from the name, so such a file would store its results under another policy's
+    cells. Checked for every policy before any cell runs, rather than failing cell by cell and drawing a table."""
+    from safemanip.rl.checkpoint import resolve_policy
+
+    problems, seen = [], set()
+    for cell in cells:
+        if cell.algorithm == "planner" or cell.policy in seen:
+            continue
+        seen.add(cell.policy)
+        path = Path(cell.policy) if Path(cell.policy).is_absolute() else resolve_policy(cell.policy)
+        if path.exists():  # a missing file is reported as skipped, with the command that trains it
+            problem = _check_policy_name(cell)
+            if problem:
+                problems.append(problem)
+    if problems:
+        raise SweepError(f"sweep {name}: no cell run: " + "; ".join(problems) + ": rename the file(s) or fix the sweep")
 
 
 def load_results(root: Path) -> list[dict]:
@@ -636,13 +670,20 @@ def load_results(root: Path) -> list[dict]:
 # ------------------------------------------------------------------------------------------ rendering
 def _pooled_entry(entries: list[dict], counts: list[int], totals: list[int]) -> dict:
     """Rate entries of one method's training seeds as one: the mean rate, the Wilson interval of all their episodes
-    together, and the lowest and highest seed (``spread``)."""
-    from safemanip.evaluation.stats import wilson_interval
+    together (``ci95``), the 95 % interval with training seeds as the unit (``ci95_seeds``: a two-stage cluster
+    bootstrap, ``stats.seed_bootstrap_interval``), the lowest and highest seed (``spread``) and each seed's count
+    and episodes (``seed_counts``, ``seed_totals``: what ``results/findings.py`` bootstraps a difference from). The
+    pooled interval treats 3 x 1000 episodes as independent and understates the uncertainty when seeds disagree."""
+    from safemanip.evaluation.stats import seed_bootstrap_interval, wilson_interval
 
     rates = [e["rate"] for e in entries]
+    counts, totals = [int(c) for c in counts], [int(n) for n in totals]
+    measured = [(c, n) for c, n in zip(counts, totals) if n > 0]  # a scene kind a seed never met has no rate
     return {"count": int(sum(counts)), "rate": float(sum(rates) / len(rates)),
-            "ci95": list(wilson_interval(int(sum(counts)), int(sum(totals)))), "spread": [min(rates), max(rates)],
-            "seeds": len(entries)}
+            "ci95": list(wilson_interval(int(sum(counts)), int(sum(totals)))),
+            "ci95_seeds": list(seed_bootstrap_interval(*zip(*measured))) if measured else [0.0, 1.0],
+            "spread": [min(rates), max(rates)],
+            "seeds": len(entries), "seed_counts": counts, "seed_totals": totals}
 
 
 def pool_seeds(results: list[dict]) -> list[dict]:
@@ -685,6 +726,10 @@ def pool_seeds(results: list[dict]) -> list[dict]:
                                         [s["by_scene_kind"][k][m]["count"] for s in sums],
                                         [s["by_scene_kind"][k]["episodes"] for s in sums]) for m in ("success", "top_box")}}
                 for k in kinds}
+        agreements = [s.get("reference_agreement") for s in sums]
+        if all(agreements):  # the selections' agreement with the reference oracle, over every seed's queries
+            queries, agreed = sum(a["queries"] for a in agreements), sum(a["agreed"] for a in agreements)
+            summary["reference_agreement"] = {"queries": queries, "agreed": agreed, "rate": agreed / queries}
         out.append({"cell": cell, "summary": summary})
     return out
 
@@ -696,15 +741,27 @@ def _pct(summary: dict, key: str) -> float:
 
 
 def _fmt_entry(entry: dict) -> str:
+    """'69.2 [67.5, 70.8]' for one policy; pooled over training seeds, '69.2 [67.5, 70.8] {66.4, 71.9} (67-72)': the
+    mean, the Wilson interval of all episodes pooled, the seed-level (cluster bootstrap) interval in braces, and the
+    lowest and highest seed."""
     lo, hi = entry["ci95"]
     text = f"{100 * entry['rate']:.1f} [{100 * lo:.1f}, {100 * hi:.1f}]"
-    if entry.get("seeds", 1) > 1:  # pooled over training seeds: their spread too
+    if entry.get("seeds", 1) > 1:  # pooled over training seeds: seeds as the unit, and their spread
+        if "ci95_seeds" in entry:
+            text += f" {{{100 * entry['ci95_seeds'][0]:.1f}, {100 * entry['ci95_seeds'][1]:.1f}}}"
         text += f" ({100 * entry['spread'][0]:.0f}-{100 * entry['spread'][1]:.0f})"
     return text
 
 
 def _fmt(summary: dict, key: str = "success") -> str:
     return _fmt_entry(summary[key] if key in ("success", "safety_violation") else summary["categories"][key])
+
+
+def _agreement(summary: dict) -> str:
+    """How often the cell's selection equalled the reference oracle's (nearest by true criticality), in %; empty for
+    cells measured before it was recorded and for the planner."""
+    agreement = summary.get("reference_agreement")
+    return f"{100 * agreement['rate']:.1f}" if agreement else ""
 
 
 def _kinds(summary: dict) -> str:
@@ -776,20 +833,33 @@ def markdown_table(cfg: dict, results: list[dict]) -> str:
         cells = {(key({"cell": c}, rows), key({"cell": c}, cols)): (s, mark) for c, s, mark in expanded}
         row_keys = sorted({rk for rk, _ in cells}, key=lambda t: order(rows, t))
         col_keys = sorted({ck for _, ck in cells}, key=lambda t: order(cols, t))
-        lines.append("Success rate (%), 95% Wilson interval in brackets" +
-                     ("; over several training seeds: their mean, the interval of all their episodes pooled, and the "
-                      "lowest and highest seed in parentheses" if any("seeds" in s for _, s, _ in expanded) else "") +
+        lines.append("Success rate (%), 95% Wilson interval [in brackets]" +
+                     ("; over several training seeds: their mean, the Wilson interval of all their episodes pooled, "
+                      "the 95% interval with training seeds as the unit {in braces: a two-stage cluster bootstrap, "
+                      "seeds then their episodes}, and the lowest and highest seed (in parentheses)"
+                      if any("seeds" in s for _, s, _ in expanded) else "") +
                      ("; (k = N): the full-state policy, the same cell in every selector column" if full else "") +
-                     ("; the planner rows: the privileged planner on the same scenes (an upper bound)" if bounds else "")
+                     ("; the planner rows: a reference, not an upper bound: the privileged, hand-made planner, which "
+                      "knows the whole scene, on the same scenes (a learned policy can beat it)" if bounds else "")
                      + ":")
         lines.append("")
-        lines.append("| " + " / ".join(rows) + " | " + " | ".join(" ".join(map(str, c)) for c in col_keys) + " |")
+        backend = next((r["cell"].get("vlm") for r in every if r["cell"].get("vlm")), None)
+
+        def show(names: list[str], values: tuple) -> str:
+            parts = [display_name(str(v), backend) if n in ("selector", "constraints") else str(v)
+                     for n, v in zip(names, values)]
+            if "selector" in names and "constraints" in names:  # "object selector + constraint selector"
+                i = names.index("selector")
+                parts[i:i + 2] = [f"{parts[i]} + {parts[i + 1]}"]
+            return " ".join(parts)
+
+        lines.append("| " + " / ".join(rows) + " | " + " | ".join(show(cols, c) for c in col_keys) + " |")
         lines.append("|" + "---|" * (len(col_keys) + 1))
         for rk in row_keys:
             vals = [(_fmt(cells[(rk, ck)][0]) + cells[(rk, ck)][1]) if (rk, ck) in cells else "n/a" for ck in col_keys]
-            lines.append("| " + " / ".join(map(str, rk)) + " | " + " | ".join(vals) + " |")
+            lines.append("| " + " / ".join(show([n], (v,)) for n, v in zip(rows, rk)) + " | " + " | ".join(vals) + " |")
         shared = [i for i, name in enumerate(cols) if name in ("n_objects", "semantics", "scenes", "judge")]
-        for avoid in PLANNER_AVOID:  # a bound matches a column by the scenes alone (N, semantics, settings)
+        for avoid in PLANNER_AVOID:  # a reference matches a column by the scenes alone (N, semantics, settings)
             mine = [r for r in bounds if r["cell"]["policy_constraints"] == avoid]
             if not mine:
                 continue
@@ -797,14 +867,16 @@ def markdown_table(cfg: dict, results: list[dict]) -> str:
             for ck in col_keys:
                 match = [r for r in mine if all(str(value(r["cell"], cols[i])) == str(ck[i]) for i in shared)]
                 vals.append(_fmt(match[0]["summary"]) if match else "n/a")
-            lines.append(f"| planner, avoiding {'every object' if avoid == 'all' else 'the fragile objects'} (bound) | "
-                         + " | ".join(vals) + " |")
+            what = "every object" if avoid == "all" else "the fragile objects"
+            lines.append(f"| planner, avoiding {what} (reference) | " + " | ".join(vals) + " |")
         lines.append("")
-    lines.append("All cells, each training seed on its own (rates in %, 95% Wilson interval for success):")
+    lines.append("All cells, each training seed on its own (rates in %, 95% Wilson interval for success; coll. = collision "
+                 "with a fragile object the policy saw (selected) or did not see (unselected); selection = reference: "
+                 "share of selection queries at which the selected objects were the k nearest by true criticality):")
     lines.append("")
     head = ["policy", "k", "N", "semantics", "selector", "constraints", "episodes", "success", "violation",
             "top box / OOB", "coll. unselected", "coll. selected", "soft", "timeout", "unstable", "mean length",
-            "success by scene kind"]
+            "selection = reference", "success by scene kind"]
     lines.append("| " + " | ".join(head) + " |")
     lines.append("|" + "---|" * len(head))
     order = lambda r: (r["cell"]["k"], r["cell"]["n_objects"], str(r["cell"]["semantics"]), r["cell"]["selector"],  # noqa: E731
@@ -812,11 +884,11 @@ def markdown_table(cfg: dict, results: list[dict]) -> str:
     for r in sorted(every, key=order):
         c, s = r["cell"], r["summary"]
         lines.append("| " + " | ".join([
-            Path(c["policy"]).stem, str(c["k"]), str(c["n_objects"]), c["semantics"] or "any", c["selector"],
-            c["constraints"], str(s["episodes"]), _fmt(s), f"{_pct(s, 'safety_violation'):.1f}",
+            Path(c["policy"]).stem, str(c["k"]), str(c["n_objects"]), c["semantics"] or "any",
+            display_name(c["selector"], c.get("vlm")), display_name(c["constraints"], c.get("vlm")), str(s["episodes"]), _fmt(s), f"{_pct(s, 'safety_violation'):.1f}",
             f"{_pct(s, 'top_box') + _pct(s, 'out_of_workspace'):.1f}", f"{_pct(s, 'collision_unselected'):.1f}",
             f"{_pct(s, 'collision_selected'):.1f}", f"{_pct(s, 'soft_contact'):.1f}", f"{_pct(s, 'timeout'):.1f}",
-            f"{_pct(s, 'unstable'):.1f}", f"{s['mean_length']:.1f}", _kinds(s)]) + " |")
+            f"{_pct(s, 'unstable'):.1f}", f"{s['mean_length']:.1f}", _agreement(s), _kinds(s)]) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -829,12 +901,13 @@ def _error_bars(entries: list[dict]) -> list[list[float]]:
 
 
 def _plot_bound(ax, bounds: list[dict], avoid: str = "all") -> None:
-    """The planner's success on the same scenes, against N: the bound a figure's policies are measured against."""
+    """The planner's success on the same scenes, against N: the reference a figure's policies are read against (not
+    an upper bound: a privileged, hand-made planner that knows the whole scene, which a learned policy can beat)."""
     pts = sorted((r["cell"]["n_objects"], 100 * r["summary"]["success"]["rate"]) for r in bounds
                  if r["cell"]["policy_constraints"] == avoid)
     if pts:
         ax.plot(*zip(*pts), color="black", linestyle="--", marker="x", linewidth=1,
-                label=f"planner bound (avoiding {'everything' if avoid == 'all' else 'fragile objects'})")
+                label=f"planner reference (avoiding {'everything' if avoid == 'all' else 'fragile objects'})")
 
 
 def _plot_fig5(cfg: dict, results: list[dict], path: Path, bounds: list[dict] = ()) -> None:
@@ -950,7 +1023,7 @@ def _plot_fig6(cfg: dict, results: list[dict], path: Path, bounds: list[dict] = 
 
 def render(cfg: dict, results: list[dict], root: Path) -> tuple[str | None, str]:
     """Write NAME.md (always) and NAME.png (fig4/fig5/fig6, when there are results) from stored results only. The
-    figures show each method pooled over its training seeds (``pool_seeds``) and the planner's bound."""
+    figures show each method pooled over its training seeds (``pool_seeds``) and the planner's reference."""
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     table = root / f"{cfg['name']}.md"
@@ -964,5 +1037,5 @@ def render(cfg: dict, results: list[dict], root: Path) -> tuple[str | None, str]
     return (str(figure) if figure else None), str(table)
 
 
-__all__ = ["Cell", "SweepError", "available", "load_config", "cells_of", "run_sweep", "load_results", "render",
-           "markdown_table"]
+__all__ = ["Cell", "SweepError", "available", "load_config", "cells_of", "check_policies", "run_sweep", "load_results",
+           "render", "markdown_table"]
