@@ -229,3 +229,67 @@ def test_http_401_is_not_retried_and_says_what_to_fix():
         with pytest.raises(BackendError, match="OPENAI_API_KEY"):
             backend.assign_constraints(ConstraintQuery(names=NAMES))
     assert len(server.requests) == 1
+
+
+# ------------------------------------------------------------------ answers the way served models write them
+
+
+def content_reply(content_for: Callable[[dict], str]) -> Callable[[dict], tuple[int, bytes, str]]:
+    return lambda req: (200, json.dumps(completion(content_for(req))).encode(), "application/json")
+
+
+@pytest.mark.parametrize("content, expected", [
+    # prose around a fenced answer, objects by name and by bare id (a model without grammar-constrained decoding)
+    ('Sure! Looking at the frames, the box moves right.\n```json\n{"objects": ["Soda Can", "1"], '
+     '"explanation": "closest"}\n```\nLet me know if you need more.', [2, 1]),
+    # the same object twice, then a third: repeats are one object
+    ('{"image_description": "", "explanation": "", "objects": ["0: red mug", "0: red mug", "2: soda can"]}', [0, 2]),
+    # ids as numbers and "object N (name)" forms
+    ('{"objects": [2, "object 0 (red mug)"], "explanation": "x", "image_description": "y", "confidence": 0.9}', [2, 0]),
+], ids=["prose-and-names", "duplicated-ids", "numbers-and-extra-keys"])
+def test_answers_written_loosely_by_a_served_model_are_read_right(content, expected):
+    with FakeServer(content_reply(lambda req: content)) as server:
+        selector = DynamicVLMSelector(backend_for(server, attempts=1), query_interval=4)
+        v = view()
+        selector.reset(v, 2)
+        assert selector.select(v, 2) == expected
+    assert selector.stats.fallbacks == 0
+
+
+@pytest.mark.parametrize("content", [
+    '{"objects": ["red mugg", "toy sheep"]}',  # a misspelt name is not guessed
+    '{"objects": ["toy sheep"]}',  # one object where two were asked for
+    '{"objects": ["1: toy sheep", "1: toy sheep"]}',  # two entries, one object
+    '{"objects": ["0: red mug", "1: toy sheep", "2: soda can"]}',  # three where two were asked for
+    '{"objects": ["7", "1"]}',  # an id the scene does not have
+    "I'm sorry, but I can't help with identifying objects in these images.",  # a refusal in prose
+], ids=["misspelt", "partial", "duplicate-only", "too-many", "unknown-id", "prose-refusal"])
+def test_answers_that_name_the_wrong_objects_fall_back_and_are_counted(content):
+    with FakeServer(content_reply(lambda req: content)) as server:
+        selector = DynamicVLMSelector(backend_for(server, attempts=2), query_interval=4)
+        v = view()
+        selector.reset(v, 2)
+        assert selector.select(v, 2) == dynamic_knn(v, 2)
+    assert selector.stats.fallbacks == 1 and len(server.requests) == 2  # retried once, then the fallback
+
+
+def test_a_refusal_field_is_not_retried_and_falls_back():
+    refusal = {"id": "x", "object": "chat.completion", "created": 0, "model": "m",
+               "choices": [{"index": 0, "finish_reason": "stop",
+                            "message": {"role": "assistant", "content": None, "refusal": "I can't assist with that."}}]}
+    with FakeServer(lambda req: (200, json.dumps(refusal).encode(), "application/json")) as server:
+        cons = VLMConstraintSelector(backend_for(server, attempts=3))
+        assert cons.assign(view()) == ["no_contact"] * 3
+    assert cons.stats.fallbacks == 1 and len(server.requests) == 1
+
+
+def test_constraints_keyed_by_name_and_written_loosely_are_read_right():
+    loose = ('Here are the constraints:\n{"constraints": {"Red mug": "No contact", '
+             '"1": {"constraint": "any-contact"}, "soda can": {"constraint": "Soft_Contact", "explanation": "plastic"}}}')
+    with FakeServer(content_reply(lambda req: loose)) as server:
+        cons = VLMConstraintSelector(backend_for(server, attempts=1))
+        assert cons.assign(view()) == ["no_contact", "any_contact", "soft_contact"]
+        missing = '{"constraints": {"red mug": "no contact", "toy sheep": "any contact"}}'  # the can is left out
+    with FakeServer(content_reply(lambda req: missing)) as server:
+        cons = VLMConstraintSelector(backend_for(server, attempts=1))
+        assert cons.assign(view()) == ["no_contact"] * 3 and cons.stats.fallbacks == 1

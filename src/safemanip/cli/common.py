@@ -110,7 +110,7 @@ def add_vlm_options(p) -> None:
     """The semantic-backend options of eval and sweep (``VLM_FIELDS`` of the evaluation harness)."""
     from safemanip.semantics.base import VLM_BACKENDS
 
-    vlm = p.add_argument_group("semantic backend (for --selector dynamic-vlm / --constraint-selector vlm)")
+    vlm = p.add_argument_group("semantic backend (for --selector semantic / dynamic-vlm and --constraint-selector vlm)")
     vlm.add_argument("--vlm-backend", choices=VLM_BACKENDS,
                      help="semantic: offline embedding model (default); openai: any OpenAI-compatible server")
     vlm.add_argument("--vlm-model", help="model name for --vlm-backend openai (default gpt-4o)")

@@ -16,9 +16,9 @@ EVAL_EXAMPLES = """examples:
   safemanip eval --policy rarl-k2-conservative-s0 --n-objects 6 --selector dynamic-knn \\
       --judge conservative --episodes 2000 --out results/k2-n6-dyn
   safemanip eval --policy rarl-k2-conservative-s0 --semantics "2 fragile, 3 durable" \\
-      --selector dynamic-vlm --episodes 500 --backend ray
+      --selector semantic --episodes 500 --backend ray
   safemanip eval --policy runs/k2-all/policy.safetensors --semantics "2 fragile, 2 soft, 1 durable" \\
-      --selector dynamic-vlm --constraint-selector vlm --vlm-backend openai --vlm-model gpt-4o --vlm-cache vlm_cache
+      --selector semantic --constraint-selector vlm --vlm-backend openai --vlm-model gpt-4o --vlm-cache vlm_cache
 
 "nearest" (static-knn, dynamic-knn, privileged) = horizontal distance from an object's centre to the
 centre of the manipulated (bottom) box. Policy slots are filled nearest first.

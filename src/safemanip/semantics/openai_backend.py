@@ -22,6 +22,7 @@ import logging
 import math
 import os
 import random
+import re
 import socket
 import threading
 import time
@@ -349,12 +350,25 @@ def _content_json(reply: Any) -> dict:
     if not isinstance(content, str) or not content.strip():
         raise _Retryable("empty message content")
     try:
-        answer = parse_json(content, "the model's answer", max_bytes=MAX_REPLY_BYTES)
+        answer = parse_json(_json_part(content), "the model's answer", max_bytes=MAX_REPLY_BYTES)
     except JSONInputError as exc:
         raise _Retryable(f"message content is not JSON ({exc.reason}): {_brief(content)}") from None
     if not isinstance(answer, dict):
         raise _Retryable(f"message content is JSON but not an object: {_brief(content)}")
     return answer
+
+
+def _json_part(content: str) -> str:
+    """The JSON object in a model's message: the whole content, or, from a server that does not enforce the schema
+    and lets the model talk ("Here is my answer: ```json {...} ```"), the one fenced or braced object in it."""
+    text = content.strip()
+    if text.startswith("{"):
+        return text
+    fenced = re.findall(r"```(?:json)?\s*(\{.*?\})\s*```", text, flags=re.DOTALL)
+    if len(fenced) == 1:
+        return fenced[0]
+    first, last = text.find("{"), text.rfind("}")
+    return text[first:last + 1] if 0 <= first < last else text
 
 
 __all__ = ["OpenAIBackend", "redact"]  # ``redact`` lives in util/secrets.py; re-exported for older imports

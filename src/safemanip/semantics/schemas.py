@@ -10,6 +10,7 @@ re-checked when read back.
 
 from __future__ import annotations
 
+import re
 from typing import Any, Sequence
 
 from safemanip.scene.catalog import CONSTRAINT_TYPES
@@ -139,12 +140,64 @@ def check_strict_compatible(schema: dict, path: str = "$") -> None:
         check_strict_compatible(schema["items"], f"{path}[]")
 
 
+def resolve_label(item: Any, labels: Sequence[str]) -> str:
+    """The scene label an answer's object entry means, or SchemaError.
+
+    Served models that do not enforce the schema write the label the way a person would: ``"3: red mug"``,
+    ``"3"``, ``3``, ``"Red Mug"``, ``"object 3 (red mug)"``. An entry is resolved only when it names exactly one label:
+    by its exact label, by an id alone, by an id whose name (if given) agrees, or by a name that exactly one object
+    has (ignoring case and spacing). Anything else (an unknown or misspelt name, an id out of range, a name two
+    objects share, an id that contradicts its name) is refused, never guessed."""
+    labels = list(labels)
+    if isinstance(item, bool) or not isinstance(item, (str, int)):
+        raise SchemaError(f"object entry {_short(item)} is neither a label nor an id")
+    if isinstance(item, str) and item in labels:
+        return item
+    names = {i: _plain(label.split(":", 1)[1]) for i, label in enumerate(labels)}
+    text = str(item).strip()
+    match = re.fullmatch(r"(?:object\s*|id\s*|#)?(\d+)\s*(?:[:.)\-]\s*|\s+|\()?\s*(.*?)\)?", text, flags=re.IGNORECASE)
+    if match and match.group(1) is not None:
+        i, rest = int(match.group(1)), _plain(match.group(2) or "")
+        if i in names and (not rest or rest == names[i]):
+            return labels[i]
+        raise SchemaError(f"object entry {_short(item)} names no object of this scene (labels {labels})")
+    found = [i for i, name in names.items() if name == _plain(text)]
+    if len(found) == 1:
+        return labels[found[0]]
+    if found:
+        raise SchemaError(f"object entry {_short(item)} is ambiguous: {len(found)} objects have that name; give the id")
+    raise SchemaError(f"object entry {_short(item)} names no object of this scene (labels {labels})")
+
+
+def _plain(name: str) -> str:
+    return " ".join(re.findall(r"[a-z0-9]+", str(name).lower()))
+
+
+def normalize_object_answer(answer: Any, labels: Sequence[str], k: int) -> Any:
+    """What a served model meant, in the schema's form: entries resolved to labels (``resolve_label``), repeats of
+    one object dropped, missing free-text fields empty and unknown keys ignored. Too few distinct objects after that
+    stays an error (the selector falls back for that query), and so do too many (the strict validation after it)."""
+    if not isinstance(answer, dict) or not isinstance(answer.get("objects"), list):
+        return answer
+    chosen: list[str] = []
+    for item in answer["objects"]:
+        label = resolve_label(item, labels)
+        if label not in chosen:
+            chosen.append(label)
+    if len(chosen) < k:
+        raise SchemaError(f"$.objects: {len(chosen)} distinct objects ({chosen}), the answer must name {k}")
+    return {"image_description": str(answer.get("image_description") or ""),
+            "explanation": str(answer.get("explanation") or ""), "objects": chosen}
+
+
 def parse_object_answer(answer: Any, labels: Sequence[str], k: int) -> tuple[list[int], str, str]:
     """Validate an object-selection answer; return (object ids, explanation, image_description).
 
-    Labels are ``"<id>: <name>"``; the id is read back from the label the answer chose.
+    Labels are ``"<id>: <name>"``; the id is read back from the label the answer chose. An answer that names the
+    objects loosely is first resolved by ``normalize_object_answer``; more than k objects is out of schema.
     """
     labels = list(labels)
+    answer = normalize_object_answer(answer, labels, k)
     validate(answer, object_selection_schema(labels, k))
     chosen = answer["objects"]
     if len(set(chosen)) != len(chosen):
@@ -153,9 +206,32 @@ def parse_object_answer(answer: Any, labels: Sequence[str], k: int) -> tuple[lis
     return ids, answer["explanation"], answer["image_description"]
 
 
+def normalize_constraint_answer(answer: Any, labels: Sequence[str]) -> Any:
+    """What a served model meant, in the schema's form: keys resolved to labels (``resolve_label``), a constraint
+    written loosely (``"No contact"``, ``"no-contact"``) read as its type, a missing explanation empty. Two entries for
+    one object that disagree, or an object left out, stay errors (the selector falls back to conservative)."""
+    if not isinstance(answer, dict) or not isinstance(answer.get("constraints"), dict):
+        return answer
+    entries: dict[str, dict] = {}
+    for key, entry in answer["constraints"].items():
+        label = resolve_label(key, labels)
+        if isinstance(entry, str):
+            entry = {"constraint": entry}
+        if not isinstance(entry, dict):
+            raise SchemaError(f"$.constraints[{key!r}]: expected an object with a constraint, got {_short(entry)}")
+        constraint = "_".join(re.findall(r"[a-z]+", str(entry.get("constraint", "")).lower()))
+        fixed = {"constraint": constraint, "explanation": str(entry.get("explanation") or "")}
+        if label in entries and entries[label]["constraint"] != constraint:
+            raise SchemaError(f"$.constraints: two different constraints for {label!r}")
+        entries[label] = fixed
+    return {"constraints": entries}
+
+
 def parse_constraint_answer(answer: Any, labels: Sequence[str]) -> tuple[list[str], list[str]]:
-    """Validate a constraint answer; return (constraint per label, explanation per label) in label order."""
+    """Validate a constraint answer; return (constraint per label, explanation per label) in label order. An answer
+    that names the objects or the types loosely is first resolved by ``normalize_constraint_answer``."""
     labels = list(labels)
+    answer = normalize_constraint_answer(answer, labels)
     validate(answer, constraint_schema(labels))
     entries = answer["constraints"]
     return [entries[lbl]["constraint"] for lbl in labels], [entries[lbl]["explanation"] for lbl in labels]
