@@ -17,7 +17,7 @@ from pathlib import Path
 import safemanip
 
 ROOT = Path(safemanip.__file__).parent
-LAYERS = {"util": 0, "scene": 0, "control": 0, "env": 1, "toy.system": 1, "rl": 2, "selection": 2, "semantics": 3,
+LAYERS = {"util": 0, "scene": 0, "control": 0, "env": 1, "toy.system": 1, "rl": 2, "selection": 2, "safety": 2, "semantics": 3,
           "toy": 3, "evaluation": 4, "demo": 5, "cli": 5}
 
 

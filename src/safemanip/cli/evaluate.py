@@ -92,7 +92,8 @@ EVAL_FLAGS = {"--policy": "policy", "--planner": "planner", "--n-objects": "n_ob
               "--selector": "selector", "--constraint-selector": "constraint_selector", "--judge": "judge",
               "--episodes": "episodes", "--seed-block": "seed_block", "--interval": "interval", "--pad": "pad",
               "--max-episode-steps": "max_episode_steps", "--layout": "layout", "--gate-share": "gate_share",
-              "--exit-share": "exit_share", "--embodiment": "embodiment", "--chunk-size": "chunk_size", "--out": "out"}
+              "--exit-share": "exit_share", "--embodiment": "embodiment", "--chunk-size": "chunk_size", "--out": "out",
+              "--shield": "shield"}
 """The ``EvalRequest`` fields with a flag (the compute and semantic-backend options are shared with the sweep:
 ``add_compute_backend``, ``add_vlm_options``)."""
 
@@ -102,6 +103,7 @@ def register(subparsers) -> None:
     from safemanip.evaluation.harness import EVAL_BOUNDS, JUDGES, EvalRequest
     from safemanip.evaluation.registry import CONSTRAINT_SELECTORS, OBJECT_SELECTORS
     from safemanip.evaluation.harness import SEED_STRIDE
+    from safemanip.safety import SHIELDS
 
     ev = subparsers.add_parser(
         "eval", help="roll a policy out with object/constraint selection; success and failures with 95%% intervals",
@@ -109,7 +111,7 @@ def register(subparsers) -> None:
     add_config_flags(ev, EvalRequest, EVAL_FLAGS, EVAL_BOUNDS, {"selector": OBJECT_SELECTORS, "judge": JUDGES,
                                                                   "constraint_selector": CONSTRAINT_SELECTORS,
                                                                   "planner": PLANNER_AVOID, "layout": LAYOUTS,
-                                                                  "embodiment": EMBODIMENTS})
+                                                                  "embodiment": EMBODIMENTS, "shield": SHIELDS})
     ev.add_argument("--constraints", dest="old_constraints", help=argparse.SUPPRESS)  # renamed: says so
     add_vlm_options(ev)
     _add_run_options(ev)

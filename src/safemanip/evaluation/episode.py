@@ -24,6 +24,7 @@ from typing import Callable
 
 import numpy as np
 
+from safemanip.scene.catalog import CONSTRAINT_OF_CLASS
 from safemanip.selection.base import ConstraintSelector, ObjectSelector
 from safemanip.selection.reducer import Reducer
 from safemanip.selection.selectors import DEFAULT_INTERVAL, criticality_first
@@ -66,13 +67,31 @@ def _breaker_open(*selectors) -> str:
     return "" if not states else ("yes" if any(states) else "no")
 
 
+def shield_constraints(object_selector, constraint_selector, assigned: list[str], view) -> list[str]:
+    """The constraint type per object a safety filter protects, from the cell's best semantic source: the constraint
+    selector's types when it is semantic or ground truth; else the object selector's classes when it has them (the
+    privileged selectors read the true classes, the offline semantic one decides them); else every object no_contact.
+    So a filter adds safety without hiding what a selector fails to know (issue 45)."""
+    if getattr(constraint_selector, "name", "") in ("vlm", "ground-truth"):
+        return list(assigned)
+    classes = None
+    if getattr(object_selector, "name", "").startswith("privileged"):
+        classes = view.privileged_classes
+    elif hasattr(getattr(object_selector, "backend", None), "classify"):
+        classes = object_selector.backend.classify(view.names)
+    if classes is None:
+        return ["no_contact"] * len(view.names)
+    return [CONSTRAINT_OF_CLASS[c] for c in classes]
+
+
 def run_episode(env, actor: Callable[[np.ndarray], np.ndarray], reducer: Reducer, object_selector: ObjectSelector,
                 constraint_selector: ConstraintSelector, seed: int, *, builder: EnvViewBuilder | None = None,
-                after_reset: Callable | None = None, on_step: Callable | None = None) -> dict:
+                after_reset: Callable | None = None, on_step: Callable | None = None, shield=None) -> dict:
     """Roll one episode out and return its record (plain types, ready for CSV/JSON).
 
     ``after_reset(env)`` may edit the scene right after the reset (tests place objects by hand);
-    ``on_step(env, info, ids)`` sees every step (the demo records frames and margins with it).
+    ``on_step(env, info, ids)`` sees every step (the demo records frames and margins with it); ``shield`` (a safety
+    filter, ``safety.SHIELDS``) may override the policy's action every step.
     """
     builder = builder or EnvViewBuilder()
     env.reset(seed=int(seed))
@@ -94,6 +113,8 @@ def run_episode(env, actor: Callable[[np.ndarray], np.ndarray], reducer: Reducer
         raise RuntimeError(f"constraint selector {constraint_selector.name!r} gave {len(assigned)} types for {n} objects")
     want = min(k, n)
     up_to = getattr(object_selector, "variable_k", False)  # dynamic k: any number of objects up to k
+    protected = shield_constraints(object_selector, constraint_selector, assigned, view) if shield is not None else None
+    overrides = shield.stats.overrides if shield is not None else 0
     changes: list[tuple[int, tuple[int, ...]]] = []
     ids: list[int] = []
     t = 0
@@ -115,6 +136,8 @@ def run_episode(env, actor: Callable[[np.ndarray], np.ndarray], reducer: Reducer
             reference_agreed += tuple(sorted(reference)) == key
         obs = reducer(state, ids, assigned)
         action = actor(obs[None])[0]
+        if shield is not None:
+            action = shield.filter(env, action, protected)
         _, _, terminated, truncated, info = env.step(action)
         if on_step is not None:
             on_step(env, info, ids)
@@ -130,7 +153,8 @@ def run_episode(env, actor: Callable[[np.ndarray], np.ndarray], reducer: Reducer
         "constraint_queries": _stat(constraint_selector, "queries") - q0[2],
         "constraint_fallbacks": _stat(constraint_selector, "fallbacks") - q0[3],
         "vlm_breaker_open": _breaker_open(object_selector, constraint_selector),
-        "reference_queries": reference_queries, "reference_agreed": reference_agreed})
+        "reference_queries": reference_queries, "reference_agreed": reference_agreed,
+        "shield_overrides": (shield.stats.overrides - overrides) if shield is not None else 0})
 
 
 def run_planner_episode(env, planner, seed: int) -> dict:
@@ -147,7 +171,7 @@ def run_planner_episode(env, planner, seed: int) -> dict:
     everything = tuple(range(len(env.names)))
     return _record(env, info, seed, list(everything), list(env.constraints), [(0, everything)], kind,
                    {"object_queries": 0, "object_fallbacks": 0, "constraint_queries": 0, "constraint_fallbacks": 0,
-                    "vlm_breaker_open": "", "reference_queries": 0, "reference_agreed": 0})
+                    "vlm_breaker_open": "", "reference_queries": 0, "reference_agreed": 0, "shield_overrides": 0})
 
 
 def _record(env, info: dict, seed: int, ids: list[int], assigned: list[str], changes: list, kind: str,

@@ -57,7 +57,8 @@ def _eval_bounds() -> dict:
 EVAL_BOUNDS = _eval_bounds()
 """The ranges of ``EvalRequest``'s numeric fields: ``prepare`` checks a request against them and ``safemanip eval``
 builds its flags' types from them."""
-METRIC_SELECTORS = ("static-knn", "dynamic-knn", "dynamic-radius", "privileged", "dynamic-vlm")
+METRIC_SELECTORS = ("static-knn", "dynamic-knn", "dynamic-radius", "privileged", "privileged-criticality", "semantic",
+                    "dynamic-vlm")
 
 
 class EvalConfigError(ValueError):
@@ -118,6 +119,9 @@ class EvalRequest:
     """Robot to evaluate on (default: the one the policy was trained on; another one is refused)."""
     chunk_size: int | None = None
     """Episodes per worker task (default: about 8 tasks per worker)."""
+    shield: str | None = None
+    """A safety filter around the policy: 'brake' overrides an action after which the held box could not stop short
+    of a protected object (docs/safety.md; default: none)."""
     progress: bool = False
 
 
@@ -256,6 +260,12 @@ def prepare(req: EvalRequest) -> Prepared:
                         f"{', '.join(sorted(CONSTRAINT_SELECTORS))}")
     if req.judge not in JUDGES:
         problems.append(f"unknown --judge {req.judge!r}; choose one of {', '.join(JUDGES)}")
+    from safemanip.safety import SHIELDS
+
+    if req.shield is not None and req.shield not in SHIELDS:
+        problems.append(f"unknown --shield {req.shield!r}; choose one of {', '.join(sorted(SHIELDS))}")
+    if req.shield is not None and req.planner is not None:
+        problems.append("--shield wraps a policy; the planner keeps its own clearance: drop --shield or --planner")
     if req.out is not None:
         problems += check_output_dir(req.out)
     uses_vlm = req.selector in USES_VLM or (req.constraint_selector or "") in USES_VLM
@@ -335,7 +345,7 @@ def prepare(req: EvalRequest) -> Prepared:
     constraints = req.constraint_selector or ("conservative" if meta["constraints"] == "conservative" else "ground-truth")
     spec = EvalSpec(actor_arrays=arrays, k=k, policy_constraints=meta["constraints"], env_kwargs=env_kwargs,
                     selector=selector, constraints=constraints, options=options, pad=req.pad,
-                    object_size=policy_object_size(meta))
+                    object_size=policy_object_size(meta), shield=req.shield)
     seeds = [req.seed_block * SEED_STRIDE + i for i in range(req.episodes)]
     return Prepared(req, spec, meta, seeds, n, notes)
 
@@ -429,6 +439,13 @@ def _agreement(records: list[dict]) -> dict | None:
     return {"queries": queries, "agreed": agreed, "rate": agreed / queries}
 
 
+def _interventions(records: list[dict]) -> dict | None:
+    """Steps at which the safety filter overrode the policy, over all steps; None without a filter."""
+    overrides = int(sum(int(r.get("shield_overrides") or 0) for r in records))
+    steps = int(sum(int(r["length"]) for r in records))
+    return {"overrides": overrides, "steps": steps, "rate": overrides / steps if steps else 0.0} if overrides else None
+
+
 def summarize(records: list[dict]) -> dict:
     n = len(records)
     cats = Counter(r["category"] for r in records)
@@ -450,6 +467,7 @@ def summarize(records: list[dict]) -> dict:
                              ("object_queries", "object_fallbacks", "constraint_queries", "constraint_fallbacks")},
         "vlm_breaker_open_episodes": int(sum(r.get("vlm_breaker_open") == "yes" for r in records)),
         "reference_agreement": _agreement(records),
+        "shield_interventions": _interventions(records),
         "by_scene_kind": _by_scene_kind(records),
     }
 
@@ -460,7 +478,7 @@ def describe(prep: Prepared) -> dict:
     return {"policy": policy, "algorithm": meta.get("algorithm"), "k": spec.k,
             "policy_constraints": spec.policy_constraints, "n_objects": prep.n_objects, "semantics": req.semantics,
             "selector": spec.selector, "constraints": spec.constraints, "judge": req.judge, "pad": spec.pad,
-            "interval": spec.options.interval, "vlm": ({"backend": spec.options.vlm_backend, "model": req.vlm_model,
+            "interval": spec.options.interval, "shield": spec.shield, "vlm": ({"backend": spec.options.vlm_backend, "model": req.vlm_model,
                                                          "base_url": mask_url(req.vlm_base_url), "cache": req.vlm_cache,
                                                          "cache_only": req.vlm_cache_only}
                                                         if spec.selector in USES_VLM or spec.constraints in USES_VLM
@@ -487,6 +505,10 @@ def format_summary(summary: dict, title: str) -> str:
     if q["object_queries"] or q["constraint_queries"]:
         lines.append(f"semantic queries: objects {q['object_queries']} ({q['object_fallbacks']} fell back), "
                      f"constraints {q['constraint_queries']} ({q['constraint_fallbacks']} fell back)")
+    interventions = summary.get("shield_interventions")
+    if interventions:
+        lines.append(f"safety filter: overrode the policy at {interventions['overrides']} of {interventions['steps']} "
+                     f"steps ({100 * interventions['rate']:.1f} %)")
     agreement = summary.get("reference_agreement")
     if agreement:
         lines.append(f"selection equal to the reference (nearest by true criticality) at {100 * agreement['rate']:.1f} % "
@@ -529,7 +551,7 @@ def write_records(out: Path, records: list[dict], summary: dict) -> None:
 def read_records(path: Path) -> list[dict]:
     """Rows of an episodes.csv with numbers turned back into ints (for rebuilding tables)."""
     ints = ("seed", "length", "selection_changes", "object_queries", "object_fallbacks", "constraint_queries",
-            "constraint_fallbacks", "reference_queries", "reference_agreed")
+            "constraint_fallbacks", "reference_queries", "reference_agreed", "shield_overrides")
     with open(path, newline="") as f:
         rows = list(csv.DictReader(f))
     for r in rows:

@@ -55,6 +55,8 @@ class EvalSpec:
     planner: str | None = None
     """Instead of the policy, the privileged planner keeping clear of 'all' objects or of the 'fragile' ones only
     (``control.planner.PLANNER_AVOID``): the bound on the same scenes."""
+    shield: str | None = None
+    """A safety filter around the policy (``safety.SHIELDS``), or None."""
 
 
 @contextlib.contextmanager
@@ -96,9 +98,13 @@ def run_chunk(spec: EvalSpec, seeds: list[int], on_record: Callable[[dict], None
             osel = make_object_selector(spec.selector, spec.options)
             csel = make_constraint_selector(spec.constraints, spec.options)
             builder = EnvViewBuilder(camera=spec.camera)
+            shield = None
+            if spec.shield is not None:
+                from safemanip.safety import make_shield
+                shield = make_shield(spec.shield)
             records = []
             for s in seeds:
-                records.append(run_episode(env, actor, reducer, osel, csel, s, builder=builder))
+                records.append(run_episode(env, actor, reducer, osel, csel, s, builder=builder, shield=shield))
                 if on_record is not None:
                     on_record(records[-1])
             return records

@@ -1,0 +1,222 @@
+"""A least-restrictive safety filter: let the task policy act while the held box can still stop in time, brake
+otherwise (issue 45).
+
+Model-based, a braking envelope. Every control step the filter predicts where the held box would go if it applied the
+policy's action for this step and then braked as hard as the arm can, and sweeps the box's footprint along that path.
+If the swept footprint comes within the clearance of a ``no_contact`` object, or reaches a ``soft_contact`` object
+faster than the soft-contact speed, it overrides the action: with the policy's own action scaled down, the first
+scale that is safe, else with the brake (a zero displacement: the controller ramps its command to rest at the
+Cartesian acceleration limit), until the policy's own action is safe again. An action
+that moves away from an object it is already too close to is always allowed, so the filter never pins the box.
+
+Why a braking check and not a learned critic: the unsafe set here is geometric and the arm's stopping behaviour is
+measurable, so a check over a few footprints per step is exact about what it assumes and costs microseconds; an
+avoid-only critic would inherit the task policy's training distribution and give no statement a user can check.
+
+What it sees is what a deployed robot's perception and controller report: every object's position and footprint
+radius (a bounding box), the held box's pose and velocity, and the Cartesian command the robot's own controller is
+tracking. It never steps the simulator ahead.
+
+What it assumes (docs/safety.md): objects stand still while the box brakes; the box's footprint, swept along its
+path, covers the hand (the pads press on the box's lip, inside its footprint) but not the rest of the arm; the
+arm decelerates at least ``decel`` along any horizontal direction once its command falls below its actual speed,
+after a lag of one control step; and the command leads the arm by at most what it asked for beyond the arm's speed.
+``decel`` and ``lag`` were measured by braking from full-speed pulls in eight directions (``benchmarks/braking.py``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from safemanip.control.diff_ik import MAX_EE_ACCEL, MAX_EE_SPEED, limit_ee_velocity, shape_action
+from safemanip.scene.builder import CONTROL_DT
+
+BRAKE = np.zeros(3, dtype=np.float32)
+"""The last resort: no displacement asked, so the controller ramps its command to rest at 13 m/s^2."""
+SLOWER = (0.7, 0.5, 0.35, 0.25)
+"""Before braking, the filter tries the policy's action scaled by these (its direction kept, its speed lower; with
+the action curve the speed falls faster than the scale): the least change that is safe."""
+
+
+@dataclass
+class ShieldStats:
+    steps: int = 0
+    overrides: int = 0
+    unavoidable: int = 0
+    """Steps at which even the brake was predicted to come too close (the filter brakes anyway)."""
+
+    @property
+    def intervention_rate(self) -> float:
+        return self.overrides / self.steps if self.steps else 0.0
+
+
+@dataclass
+class BrakingShield:
+    """The braking-envelope filter (module docstring). Call ``filter`` every control step with the policy's action and
+    one constraint type per object (which objects it protects: ``no_contact`` and ``soft_contact`` ones)."""
+
+    decel: tuple[float, float] = (8.0, 3.0)
+    """Deceleration [m/s^2] of the box once the arm brakes, along the table's x and y (an ellipse between them): the
+    first joint swings the hand fast across the robot's front (x), the shoulder and elbow slowly towards or away
+    from the base (y). Measured: at least 10 and 3 (``benchmarks/braking.py``)."""
+    lag: float = CONTROL_DT
+    """Seconds before the arm starts to decelerate after its command falls to its speed (one control step)."""
+    clearance: float = 0.02
+    """Kept from every no_contact object [m] when approaching it: the judge's d4 (1 cm) plus 1 cm for what the model
+    leaves out (with 5 mm, a random policy still reached d4 once in 200 exit scenes)."""
+    floor: float = 0.015
+    """Never swept closer than this [m] to a no_contact object, not even along it: the judge's d4 plus 5 mm (an
+    object already inside ``clearance`` may be passed or left, not approached)."""
+    soft_speed: float = 0.8
+    """Fastest contact allowed with a soft_contact object [m/s]: the judge's 1.0 m/s with a margin."""
+    resolution: float = 0.005
+    """Spacing [m] of the footprints along the swept path."""
+    name: str = "brake"
+    stats: ShieldStats = field(default_factory=ShieldStats)
+
+    def filter(self, env, action: np.ndarray, constraints: Sequence[str]) -> np.ndarray:
+        """The action to apply: ``action`` if the box can still stop in time after it, else the brake."""
+        self.stats.steps += 1
+        guarded = [i for i, c in enumerate(constraints) if c != "any_contact"]
+        if not guarded:
+            return action
+        state = env.scene_state()
+        scene = _Scene(box=np.asarray(state.bottom_pos[:2], dtype=float),
+                       yaw=_yaw(env.data.xquat[env.index.bottom_box_body]),
+                       half=np.asarray(env.geometry.box_half_extents[:2], dtype=float),
+                       centres=np.asarray(state.obj_pos, dtype=float)[guarded, :2],
+                       radii=np.asarray(state.obj_radius, dtype=float)[guarded],
+                       soft=np.array([constraints[i] == "soft_contact" for i in guarded]))
+        scene.now = _clearances(scene.box, scene.yaw, scene.half, scene.centres, scene.radii)
+        velocity = np.asarray(state.bottom_vel[:2], dtype=float)
+        command = np.asarray(env._command[:2], dtype=float)
+        if self._safe(scene, velocity, command, self._commanded(env, action)):
+            return action
+        self.stats.overrides += 1
+        # least restrictive: the policy's own direction, slower, if some speed of it is safe; then the policy's action
+        # without its part towards the nearest guarded object (sliding past it), at the same speeds; else the brake
+        action = np.asarray(action, dtype=np.float32)
+        for candidate in (action, _sliding(action, scene)):
+            for scale in SLOWER if candidate is action else (1.0, *SLOWER):
+                slower = (candidate * scale).astype(np.float32)
+                if self._safe(scene, velocity, command, self._commanded(env, slower)):
+                    return slower
+        if not self._safe(scene, velocity, command, _braking(command)):
+            self.stats.unavoidable += 1
+        return BRAKE.copy()
+
+    # ------------------------------------------------------------------ the envelope
+    def _commanded(self, env, action: np.ndarray) -> np.ndarray:
+        """The horizontal velocity the controller would command for this step under ``action`` (its own limits)."""
+        request = shape_action(np.asarray(action, dtype=np.float64).reshape(3), env.action_curve) * MAX_EE_SPEED
+        return limit_ee_velocity(request, np.asarray(env._command, dtype=float), CONTROL_DT)[:2]
+
+    def deceleration(self, direction: np.ndarray) -> float:
+        ax, ay = self.decel
+        return 1.0 / math.sqrt((direction[0] / ax) ** 2 + (direction[1] / ay) ** 2)
+
+    def slowing_distance(self, speed: float, command: float, direction: np.ndarray, to: float = 0.0) -> float:
+        """How far [m] the box goes from now at ``speed`` until it is down to ``to`` once the controller, commanding
+        ``command`` [m/s] along ``direction``, is told to stop: it keeps its speed while the command falls to it (at
+        13 m/s^2) and for one lag, then slows at ``deceleration(direction)``."""
+        lead = max(command - speed, 0.0) / MAX_EE_ACCEL
+        return speed * (lead + self.lag) + max(speed * speed - to * to, 0.0) / (2.0 * self.deceleration(direction))
+
+    def _safe(self, scene: "_Scene", velocity: np.ndarray, command: np.ndarray, commanded: np.ndarray) -> bool:
+        """Whether stepping with ``commanded`` and then braking keeps every guarded object out of reach: checked along
+        the commanded direction and along the box's present motion (it keeps going while the command turns)."""
+        speed, target, leading = (float(np.hypot(*v)) for v in (velocity, commanded, command))
+        paths = []
+        if target > RESTING:
+            reached = min(target, speed + MAX_EE_ACCEL * CONTROL_DT)  # the box's speed after this step, at most
+            u = commanded / target
+            paths.append((u, 0.5 * (speed + reached) * CONTROL_DT + self.slowing_distance(reached, target, u), reached,
+                          target))
+        if speed > RESTING:
+            u = velocity / speed
+            paths.append((u, self.slowing_distance(speed, max(leading, speed), u), speed, max(leading, speed)))
+        for u, distance, moving, commanding in paths:
+            # an object the box is already too close to may only be left: only coming closer counts
+            swept, closer = _swept_clearances(scene, u, distance, self.resolution)
+            # outside the floor: never below it, and below the clearance only if not coming closer; inside it already
+            # (the box was pushed there, or started there): only moves that do not come closer
+            inside = scene.now < self.floor
+            violates = np.where(inside, closer, (swept < self.floor) | (closer & (swept < self.clearance)))
+            if ((~scene.soft) & violates).any():
+                return False
+            if moving > self.soft_speed:  # reaching a soft object, the box must have slowed to soft_speed
+                reach = scene.soft & closer & (swept < SOFT_REACH)
+                if reach.any() and (scene.now[reach] < self.slowing_distance(moving, commanding, u,
+                                                                             self.soft_speed)).any():
+                    return False
+        return True
+
+
+RESTING = 0.01
+"""Speeds below this [m/s] have no direction worth checking along (servo jitter of a box at rest)."""
+SOFT_REACH = 0.01
+"""A soft object counts as reached when the swept box comes within the judge's d4 of it."""
+
+
+@dataclass
+class _Scene:
+    box: np.ndarray
+    yaw: float
+    half: np.ndarray
+    centres: np.ndarray
+    radii: np.ndarray
+    soft: np.ndarray
+    now: np.ndarray | None = None
+
+
+def _sliding(action: np.ndarray, scene: _Scene) -> np.ndarray:
+    """``action`` without its horizontal part towards the guarded object nearest the box now."""
+    nearest = int(np.argmin(scene.now))
+    towards = scene.centres[nearest] - scene.box
+    norm = float(np.hypot(*towards))
+    out = action.copy()
+    if norm > 1e-9:
+        n = towards / norm
+        approach = float(out[:2] @ n)
+        if approach > 0.0:
+            out[:2] -= approach * n
+    return out
+
+
+def _braking(command: np.ndarray) -> np.ndarray:
+    """The command after one braking step (toward rest at the Cartesian limit)."""
+    speed = float(np.hypot(*command))
+    if speed <= MAX_EE_ACCEL * CONTROL_DT:
+        return np.zeros(2)
+    return command * (1.0 - MAX_EE_ACCEL * CONTROL_DT / speed)
+
+
+def _yaw(quat: np.ndarray) -> float:
+    w, x, y, z = (float(q) for q in quat)
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def _clearances(box, yaw, half, centres, radii) -> np.ndarray:
+    """Distance [m] from each object's footprint circle to the box's footprint rectangle (negative: overlapping);
+    ``box`` may also be (S, 2) positions, giving (S, N)."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    rel = centres - np.asarray(box)[..., None, :]
+    local = np.abs(np.stack((rel[..., 0] * c + rel[..., 1] * s, -rel[..., 0] * s + rel[..., 1] * c), axis=-1)) - half
+    outside = np.linalg.norm(np.maximum(local, 0.0), axis=-1)
+    inside = np.minimum(local.max(axis=-1), 0.0)
+    return outside + inside - radii
+
+
+def _swept_clearances(scene: _Scene, direction, distance, resolution) -> tuple[np.ndarray, np.ndarray]:
+    """Each object's least clearance from the box's footprint swept ``distance`` along ``direction`` (from the first
+    sample ahead on), sampled every ``resolution`` (between samples it can be lower by at most half the spacing, which
+    is subtracted), and whether the sweep brings the box any closer to it than it is now."""
+    samples = max(int(math.ceil(distance / resolution)), 1)
+    steps = np.linspace(0.0, distance, samples + 1)[1:]
+    ahead = _clearances(scene.box + steps[:, None] * direction, scene.yaw, scene.half, scene.centres,
+                        scene.radii).min(axis=0)
+    return ahead - 0.5 * distance / samples, ahead < scene.now - 1e-4

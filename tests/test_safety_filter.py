@@ -1,0 +1,139 @@
+"""The braking safety filter (``safety/braking.py``): it stops the box before an object in its way at full speed in
+every direction, leaves alone a policy that keeps its clearance, and keeps a random policy from hitting anything."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from safemanip.env.slide_out import SlideOutEnv
+from safemanip.safety.braking import BrakingShield
+
+D4 = 0.01
+
+
+def _free_box(env) -> None:
+    """The box pulled out from under the top box to the right, then at rest."""
+    for _ in range(8):
+        env.step(np.array([0.7, 0.0, 0.0], dtype=np.float32))
+    for _ in range(15):
+        env.step(np.zeros(3, dtype=np.float32))
+
+
+def _place(env, i: int, xy) -> None:
+    adr = int(env.index.object_qpos[i])
+    env.data.qpos[adr:adr + 2] = xy
+    env.data.qvel[int(env.index.object_qvel[i]):int(env.index.object_qvel[i]) + 6] = 0.0
+    mujoco.mj_forward(env.model, env.data)
+
+
+@pytest.mark.parametrize("angle", range(0, 360, 45))
+def test_full_speed_towards_a_fragile_object_stops_short_of_it(angle):
+    """A ceramic bowl straight ahead in each of eight directions, 25 cm beyond the box's footprint (12 cm towards
+    the top box, 40 cm to the left, and towards the robot, whose table edge is 44 cm away), and the policy asks for
+    full speed at it, every step: the box never comes within d4 of it (it stops, or slides past it)."""
+    env = SlideOutEnv(n_objects=1, names=["ceramic bowl"], constraints="conservative")
+    env.reset(seed=0)
+    _free_box(env)
+    direction = np.array([np.cos(np.radians(angle)), np.sin(np.radians(angle))])
+    box = env.scene_state().bottom_pos[:2]
+    gap = 0.12 if min(direction) < -0.5 else 0.25  # the top box to the left, the table's near edge 44 cm away
+    _place(env, 0, box + direction * (0.165 + 0.075 + gap))  # the box's half-diagonal, the bowl's radius, the gap
+    shield = BrakingShield()
+    worst = np.inf
+    for _ in range(40):
+        action = shield.filter(env, np.r_[direction, 0.0].astype(np.float32), env.constraints)
+        _, _, terminated, _, info = env.step(action)
+        worst = min(worst, info["margins"]["g_hard:0:ceramic bowl"] + D4)
+        assert info["event"] not in ("failure:hard", "failure:dyn", "failure:oob"), (angle, info["event"])
+        if terminated:
+            break
+    assert shield.stats.overrides > 0  # it did have to brake
+    assert worst > D4, f"came within {100 * worst:.1f} cm of the bowl"
+
+
+def test_a_policy_that_keeps_its_clearance_is_never_overridden():
+    env = SlideOutEnv(n_objects=2, names=["wine glass", "red mug"], constraints="conservative")
+    env.reset(seed=0)
+    _free_box(env)
+    box = env.scene_state().bottom_pos[:2]
+    _place(env, 0, box + np.array([0.0, 0.40]))  # well beside the path
+    _place(env, 1, box + np.array([-0.35, 0.0]))  # behind the box
+    shield = BrakingShield()
+    rng = np.random.default_rng(0)
+    for _ in range(20):  # slow moves along +x, away from the mug, past the glass
+        action = np.array([0.35, rng.uniform(-0.05, 0.05), 0.0], dtype=np.float32)
+        assert np.array_equal(shield.filter(env, action, env.constraints), action)
+        env.step(action)
+    assert shield.stats.overrides == 0 and shield.stats.steps == 20
+
+
+def test_leaving_an_object_it_is_too_close_to_is_allowed_and_any_contact_objects_are_ignored():
+    env = SlideOutEnv(n_objects=1, names=["toy sheep"], constraints="conservative")
+    env.reset(seed=0)
+    _free_box(env)
+    box = env.scene_state().bottom_pos[:2]
+    _place(env, 0, box + np.array([0.0, 0.135 + 0.05 + 0.012]))  # just outside the box's long side, inside clearance
+    shield = BrakingShield()
+    away = np.array([0.0, -0.5, 0.0], dtype=np.float32)
+    assert np.array_equal(shield.filter(env, away, ["no_contact"]), away)
+    towards = np.array([0.1, 0.5, 0.0], dtype=np.float32)
+    kept = shield.filter(env, towards, ["no_contact"])
+    assert kept[1] <= 0.0 and not np.array_equal(kept, towards)  # nothing of it towards the sheep is kept
+    assert np.array_equal(shield.filter(env, towards, ["any_contact"]), towards)  # a durable object: no guard
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("layout, semantics, constraints", [
+    ("exit", None, "conservative"), ("gate", "2 fragile, 2 soft, 1 durable", "ground_truth")])
+def test_a_wrapped_random_policy_hits_nothing_in_200_episodes(layout, semantics, constraints):
+    """Exit scenes (a fragile object past the pull lane) and gate scenes (soft and durable blockers, fragile objects
+    beside them): with the filter, a random policy never collides with a protected object nor touches a soft one
+    too fast. The top box is the task policy's job (docs/safety.md)."""
+    env = SlideOutEnv(n_objects=5, classes=semantics, constraints=constraints, layout=layout,
+                      **({"exit_share": 1.0} if layout == "exit" else {"gate_share": 1.0}))
+    shield = BrakingShield()
+    rng = np.random.default_rng(0)
+    events = {}
+    for episode in range(200):
+        env.reset(seed=4_500_000 + episode)
+        while True:
+            action = shield.filter(env, rng.uniform(-1.0, 1.0, 3).astype(np.float32), env.constraints)
+            _, _, terminated, truncated, info = env.step(action)
+            if terminated or truncated:
+                break
+        events[info["event"]] = events.get(info["event"], 0) + 1
+    assert not events.get("failure:hard") and not events.get("failure:soft"), events
+    assert shield.stats.overrides > 0
+
+
+def test_which_objects_it_protects_comes_from_the_cells_best_semantic_source():
+    """Constraint selector's types when semantic or ground truth; else the object selector's classes (privileged:
+    true, semantic: decided); else every object no_contact (a kNN cell with conservative types stops at a blocker)."""
+    from types import SimpleNamespace
+
+    from safemanip.evaluation.episode import shield_constraints
+
+    view = SimpleNamespace(names=("red mug", "toy sheep"), privileged_classes=("fragile", "durable"))
+    named = lambda name, **kw: SimpleNamespace(name=name, **kw)  # noqa: E731
+    assigned = ["no_contact", "soft_contact"]
+    assert shield_constraints(named("dynamic-knn"), named("ground-truth"), assigned, view) == assigned
+    assert shield_constraints(named("dynamic-knn"), named("vlm"), assigned, view) == assigned
+    assert shield_constraints(named("privileged"), named("conservative"), ["no_contact"] * 2, view) == \
+        ["no_contact", "any_contact"]
+    classifier = SimpleNamespace(classify=lambda names: ["fragile", "soft"])
+    assert shield_constraints(named("semantic", backend=classifier), named("conservative"), [], view) == \
+        ["no_contact", "soft_contact"]
+    assert shield_constraints(named("dynamic-knn"), named("conservative"), [], view) == ["no_contact"] * 2
+
+
+def test_eval_refuses_an_unknown_filter_and_a_filter_around_the_planner():
+    from safemanip.evaluation.harness import EvalConfigError, EvalRequest, prepare
+
+    with pytest.raises(EvalConfigError, match="unknown --shield 'airbag'"):
+        prepare(EvalRequest(policy="rarl-k2-conservative-s0", shield="airbag", episodes=1))
+    with pytest.raises(EvalConfigError, match="--shield wraps a policy"):
+        prepare(EvalRequest(policy=None, planner="all", n_objects=2, shield="brake", episodes=1))
+    prep = prepare(EvalRequest(policy="rarl-k2-conservative-s0", shield="brake", episodes=1))
+    assert prep.spec.shield == "brake"
