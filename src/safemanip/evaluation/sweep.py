@@ -23,7 +23,7 @@ too)::
    "table": {"rows": ["k"], "columns": ["n_objects", "selector"]}}
 
 ``seed`` is the episode seed block (block B = seeds B x 100,000 + i). The shipped sweeps report on blocks
-31-34, blocks reserved for reported results: no checkpoint, hyper-parameter or classifier is ever chosen on
+31, 32, 43 and 44, blocks reserved for reported results: no checkpoint, hyper-parameter or classifier is ever chosen on
 them (a run's final or best policy is chosen on block 30, ``results/training/promote.py``).
 
 Policy files are named ``{algorithm}-k{k}-{constraints}[-selaware][-s{seed}].safetensors``, so a cell knows its
