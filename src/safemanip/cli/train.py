@@ -27,8 +27,7 @@ FLAGS = {
 }
 """The ``TrainConfig`` fields with a flag; every other field is set through ``--config``. The flags' types, ranges,
 choices and help come from the config itself (``cli.common.add_config_flags``)."""
-EXTRA_HELP = {"minutes": "0: no time limit.",
-              "address": "Default: RAY_ADDRESS, else a local Ray instance; never read from a config file."}
+EXTRA_HELP = {"address": "Default: RAY_ADDRESS, else a local Ray instance; never read from a config file."}
 
 
 def _cmd_train(args) -> int:

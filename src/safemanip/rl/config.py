@@ -36,8 +36,8 @@ class TrainConfig:
     (``scene.placement.sample_route``). False: the superseded straight-corridor layout (docs/results-history.md),
     in which the Panda cannot solve most scenes with N >= 3. Recorded in the policy's metadata."""
     layout: str = "route"
-    """How tightly the clutter hems in the kept-clear route (``scene.placement.LAYOUTS``): 'route' or 'narrow'
-    (every object beside the route on both sides, 1 cm to spare). Recorded in the policy's metadata."""
+    """Which scenes the episodes draw (``scene.placement.LAYOUTS``): 'route' (open scenes), 'narrow' (a channel),
+    'gate' (half gate scenes) or 'exit' (half exit scenes). Recorded in the policy's metadata."""
     embodiment: str = "panda"
     """Robot: 'panda' (the 7-DoF Franka Panda, the paper's) or 'hand' (the idealised floating-hand ablation).
     Recorded in the policy's metadata; a policy is refused in another embodiment."""
@@ -55,7 +55,7 @@ class TrainConfig:
     total_env_steps: int = 2_000_000
     """Budget in environment steps (the run stops at whichever budget is reached first)."""
     minutes: float | None = 60.0
-    """Budget in wall-clock minutes (None: no time limit)."""
+    """Budget in wall-clock minutes; none or 0 means no time limit."""
     seed: int = 0
     """Seed of everything random in the run: the learner's networks and sampling, the rollout workers' scenes and
     exploration noise."""
