@@ -62,7 +62,7 @@ class BrakingShield:
     decel: tuple[float, float] = (8.0, 3.0)
     """Deceleration [m/s^2] of the box once the arm brakes, along the table's x and y (an ellipse between them): the
     first joint swings the hand fast across the robot's front (x), the shoulder and elbow slowly towards or away
-    from the base (y). Measured: at least 10 and 3 (``benchmarks/braking.py``)."""
+    from the base (y). Set so that the model never predicts less than the arm travels (``benchmarks/braking.py``)."""
     lag: float = CONTROL_DT
     """Seconds before the arm starts to decelerate after its command falls to its speed (one control step)."""
     clearance: float = 0.02
@@ -79,7 +79,8 @@ class BrakingShield:
     stats: ShieldStats = field(default_factory=ShieldStats)
 
     def filter(self, env, action: np.ndarray, constraints: Sequence[str]) -> np.ndarray:
-        """The action to apply: ``action`` if the box can still stop in time after it, else the brake."""
+        """The action to apply: ``action`` if the box can still stop in time after it, else the least change of it that
+        can (slower, or sliding past the nearest protected object), else the brake."""
         self.stats.steps += 1
         guarded = [i for i, c in enumerate(constraints) if c != "any_contact"]
         if not guarded:
@@ -140,7 +141,6 @@ class BrakingShield:
             u = velocity / speed
             paths.append((u, self.slowing_distance(speed, max(leading, speed), u), speed, max(leading, speed)))
         for u, distance, moving, commanding in paths:
-            # an object the box is already too close to may only be left: only coming closer counts
             swept, closer = _swept_clearances(scene, u, distance, self.resolution)
             # outside the floor: never below it, and below the clearance only if not coming closer; inside it already
             # (the box was pushed there, or started there): only moves that do not come closer
