@@ -258,3 +258,32 @@ def test_every_identity_field_of_the_cell_id_is_checked(tmp_path):
         check_policies(cells_of(load_config(_config(tmp_path, [str(renamed)]))), "mini")
     for shipped in ("fig4", "fig5", "table1", "table2"):  # every shipped policy is what its name says
         check_policies(cells_of(load_config(shipped)), shipped)
+
+
+def test_a_sweep_measures_each_cell_with_and_without_a_safety_filter(tmp_path):
+    """``shields``: every policy cell once per filter (null: none), side by side in the table; a cell stored before the
+    field existed still counts as done without a filter."""
+    pol = make_policy(tmp_path / "rarl-k2-conservative.safetensors", 2, goal_seeker=True)
+    cfg = json.loads(Path(_config(tmp_path, [pol])).read_text())
+    cfg.update(selectors=["dynamic-knn"], shields=[None, "brake"],
+               table={"rows": ["selector"], "columns": ["shield"]})
+    spec = tmp_path / "shielded.json"
+    spec.write_text(json.dumps(cfg))
+    cells = cells_of(load_config(str(spec)))
+    assert sorted(c.shield or "" for c in cells) == ["", "brake"]
+    plain = next(c for c in cells if c.shield is None)
+    assert "shield" not in plain.id and next(c for c in cells if c.shield).id == plain.id + "__shield-brake"
+    out = tmp_path / "out"
+    (out / "cells").mkdir(parents=True)
+    old = {k: v for k, v in asdict(plain).items() if k != "shield"}  # as stored before the field existed
+    (out / "cells" / f"{plain.id}.json").write_text(json.dumps({"cell": old, "summary": _fake_summary(0.5)}))
+    status = run_sweep(str(spec), out=str(out), workers=1, progress=False, log=lambda s: None)
+    assert status["done"] == [plain.id] and status["ran"] == [plain.id + "__shield-brake"]
+    shielded = json.loads((out / "cells" / f"{plain.id}__shield-brake.json").read_text())
+    assert shielded["cell"]["shield"] == "brake" and shielded["summary"]["eval"]["shield"] == "brake"
+    table = Path(status["table"]).read_text()
+    assert "| no filter | filter: brake |" in table
+    bad = dict(cfg, shields=["airbag"])
+    spec.write_text(json.dumps(bad))
+    with pytest.raises(SweepError, match="unknown shield 'airbag'"):
+        load_config(str(spec))

@@ -101,13 +101,16 @@ class Cell:
     """The policy's training seed (from its name); the table and figure pool the seeds of one method."""
     scenes: str | None = None
     """The sweep's scene settings (``scenes``) in short, e.g. 'layout=exit,exit_share=1.0'; None: the policy's own."""
+    shield: str | None = None
+    """The safety filter around the policy (``safety.SHIELDS``), None for none (the sweep's ``shields``)."""
 
     @property
     def id(self) -> str:
         sem = "any" if not self.semantics else re.sub(r"[^a-z0-9]+", "-", self.semantics.lower()).strip("-")
         scenes = "" if not self.scenes else "__" + re.sub(r"[^a-z0-9.]+", "-", self.scenes.lower()).strip("-")
+        shield = "" if not self.shield else f"__shield-{self.shield}"
         return (f"{Path(self.policy).stem}__N{self.n_objects}__{sem}__{self.selector}__{self.constraints}"
-                f"__{self.judge}{scenes}")
+                f"__{self.judge}{scenes}{shield}")
 
     @property
     def group(self) -> str:
@@ -131,12 +134,12 @@ def available() -> list[str]:
 
 
 SPEC_KEYS = ("name", "title", "description", "figure", "episodes", "seed", "judge", "policies", "n_objects", "semantics",
-             "selectors", "constraints", "pairs", "k_equals_n_selector", "table", "scenes", "bounds", "folder")
+             "selectors", "constraints", "pairs", "k_equals_n_selector", "table", "scenes", "bounds", "folder", "shields")
 """Every key a sweep spec may hold; any other (a misspelt "seeds", a "layout" the grid does not take) is refused."""
 REQUIRED_KEYS = ("name", "figure", "episodes", "policies", "n_objects", "judge")
 POLICY_ENTRY_KEYS = ("path", "n_objects", "semantics")
 CELL_FIELDS = ("policy", "algorithm", "k", "policy_constraints", "n_objects", "semantics", "selector", "constraints",
-               "judge", "episodes", "seed", "vlm", "variant", "train_seed", "scenes")
+               "judge", "episodes", "seed", "vlm", "variant", "train_seed", "scenes", "shield")
 """What a table's rows and columns may name (the fields of ``Cell``)."""
 PLAIN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
 MAX_SPEC_BYTES = 1_000_000
@@ -204,7 +207,7 @@ def _validate(cfg, where: str) -> None:
                               f"{' or null' if nullable else ''}, got {_short(value)}"):
             return False
         for v in value:
-            if allowed is not None and v not in allowed:
+            if allowed is not None and v not in allowed and not (nullable and v is None):
                 problems.append(f"unknown {key[:-1] if key.endswith('s') else key} {_short(v)}; choose from "
                                 f"{', '.join(sorted(allowed))}")
         return True
@@ -285,6 +288,9 @@ def _validate(cfg, where: str) -> None:
             problems += _scene_problems(scenes)
     if "bounds" in cfg:
         str_list("bounds", cfg["bounds"], PLANNER_AVOID)
+    if "shields" in cfg:
+        from safemanip.safety import SHIELDS
+        str_list("shields", cfg["shields"], SHIELDS, nullable=True)
     extra = cfg.get("k_equals_n_selector")
     if extra is not None:
         need(isinstance(extra, str) and extra in OBJECT_SELECTORS, f"unknown k_equals_n_selector {_short(extra)}")
@@ -372,11 +378,12 @@ def cells_of(cfg: dict, episodes: int | None = None, vlm: dict | None = None) ->
                     if k == n and cfg.get("k_equals_n_selector"):
                         selector = cfg["k_equals_n_selector"]
                     uses_vlm = selector in USES_VLM or constraints in USES_VLM
-                    cell = Cell(policy, m["algorithm"], k, m["constraints"], int(n), sem, selector, constraints,
-                                cfg["judge"], episodes, int(cfg.get("seed", 0)),
-                                vlm_identity(vlm) if uses_vlm else None, m["variant"] or "",
-                                None if m["train_seed"] is None else int(m["train_seed"]), scenes)
-                    out.setdefault(cell.id, cell)
+                    for shield in cfg.get("shields") or [None]:
+                        cell = Cell(policy, m["algorithm"], k, m["constraints"], int(n), sem, selector, constraints,
+                                    cfg["judge"], episodes, int(cfg.get("seed", 0)),
+                                    vlm_identity(vlm) if uses_vlm else None, m["variant"] or "",
+                                    None if m["train_seed"] is None else int(m["train_seed"]), scenes, shield)
+                        out.setdefault(cell.id, cell)
     sizes = sorted({int(n) for e in cfg["policies"] for n in (e.get("n_objects", cfg["n_objects"]) if isinstance(e, dict)
                                                                else cfg["n_objects"])})
     own = [s for e in cfg["policies"] if isinstance(e, dict) for s in e.get("semantics", [])]
@@ -442,7 +449,12 @@ def _done(path: Path, cell: Cell) -> bool:
     stored = _read_result(path)
     if stored is None:
         return False  # a damaged result file is simply redone
-    return {"vlm": None, **stored["cell"]} == asdict(cell)  # results from before the 'vlm' field had no VLM version
+    return _with_defaults(stored["cell"]) == asdict(cell)
+
+
+def _with_defaults(cell: dict) -> dict:
+    """A stored cell's fields, with the defaults of fields added since it was stored ('vlm', 'shield')."""
+    return {"vlm": None, "shield": None, **cell}
 
 
 def run_sweep(name: str, *, episodes: int | None = None, out: str | None = None, workers: int = 2,
@@ -575,7 +587,7 @@ def _run_cells(cfg, cells, root, status, workers, backend, address, progress, lo
         req = EvalRequest(policy=str(policy), n_objects=cell.n_objects, semantics=cell.semantics,
                           selector=cell.selector, constraint_selector=cell.constraints, judge=cell.judge,
                           episodes=cell.episodes, seed_block=cell.seed, workers=workers, backend=backend,
-                          address=address, out=str(cells_dir / cell.id), progress=progress,
+                          address=address, out=str(cells_dir / cell.id), progress=progress, shield=cell.shield,
                           **scenes, **(vlm if cell.vlm else {}))
         # the file's identity (k, constraints, ...) was checked against its name before any cell ran (check_policies)
         if not _evaluate_cell(req, cell, result_path, status, tag, log):
@@ -663,7 +675,7 @@ def load_results(root: Path) -> list[dict]:
         if result is None:
             print(f"warning: ignoring unreadable result {path} (its cell is redone by the next run)", file=sys.stderr)
             continue
-        out.append(result)
+        out.append({**result, "cell": _with_defaults(result["cell"])})
     return out
 
 
@@ -764,6 +776,14 @@ def _agreement(summary: dict) -> str:
     return f"{100 * agreement['rate']:.1f}" if agreement else ""
 
 
+def _interventions(cell: dict, summary: dict) -> str:
+    """The safety filter's name and the share of steps it overrode the policy, in %; empty without a filter."""
+    if not cell.get("shield"):
+        return ""
+    rate = (summary.get("shield_interventions") or {}).get("rate", 0.0)
+    return f"{cell['shield']} {100 * rate:.1f}"
+
+
 def _kinds(summary: dict) -> str:
     """Success per scene kind, where a cell mixes kinds ('open 99.0 / exit 71.5')."""
     kinds = summary.get("by_scene_kind") or {}
@@ -782,7 +802,8 @@ def _orderer(cfg: dict):
     listed = {"selector": [s for s, _ in _pairs(cfg)] + [cfg.get("k_equals_n_selector")],
               "constraints": [c for _, c in _pairs(cfg)],
               "semantics": ["any" if s is None else s for s in cfg.get("semantics", [None])]
-              + [s for e in cfg["policies"] if isinstance(e, dict) for s in e.get("semantics", [])]}
+              + [s for e in cfg["policies"] if isinstance(e, dict) for s in e.get("semantics", [])],
+              "shield": [f"filter: {s}" if s else "no filter" for s in cfg.get("shields") or [None]]}
 
     def one(name, value):
         if isinstance(value, (int, float)):
@@ -810,6 +831,8 @@ def markdown_table(cfg: dict, results: list[dict]) -> str:
         def value(cell: dict, k: str):
             if k == "policy":
                 return Path(cell["policy"]).stem
+            if k == "shield":
+                return f"filter: {cell[k]}" if cell.get(k) else "no filter"
             return cell[k] if cell[k] is not None else "any"
 
         key = lambda r, ks: tuple(value(r["cell"], k) for k in ks)  # noqa: E731
@@ -872,11 +895,12 @@ def markdown_table(cfg: dict, results: list[dict]) -> str:
         lines.append("")
     lines.append("All cells, each training seed on its own (rates in %, 95% Wilson interval for success; coll. = collision "
                  "with a fragile object the policy saw (selected) or did not see (unselected); selection = reference: "
-                 "share of selection queries at which the selected objects were the k nearest by true criticality):")
+                 "share of selection queries at which the selected objects were the k nearest by true criticality; "
+                 "filter overrides: the safety filter and the share of steps it overrode the policy):")
     lines.append("")
     head = ["policy", "k", "N", "semantics", "selector", "constraints", "episodes", "success", "violation",
             "top box / OOB", "coll. unselected", "coll. selected", "soft", "timeout", "unstable", "mean length",
-            "selection = reference", "success by scene kind"]
+            "selection = reference", "filter overrides", "success by scene kind"]
     lines.append("| " + " | ".join(head) + " |")
     lines.append("|" + "---|" * len(head))
     order = lambda r: (r["cell"]["k"], r["cell"]["n_objects"], str(r["cell"]["semantics"]), r["cell"]["selector"],  # noqa: E731
@@ -888,7 +912,8 @@ def markdown_table(cfg: dict, results: list[dict]) -> str:
             display_name(c["selector"], c.get("vlm")), display_name(c["constraints"], c.get("vlm")), str(s["episodes"]), _fmt(s), f"{_pct(s, 'safety_violation'):.1f}",
             f"{_pct(s, 'top_box') + _pct(s, 'out_of_workspace'):.1f}", f"{_pct(s, 'collision_unselected'):.1f}",
             f"{_pct(s, 'collision_selected'):.1f}", f"{_pct(s, 'soft_contact'):.1f}", f"{_pct(s, 'timeout'):.1f}",
-            f"{_pct(s, 'unstable'):.1f}", f"{s['mean_length']:.1f}", _agreement(s), _kinds(s)]) + " |")
+            f"{_pct(s, 'unstable'):.1f}", f"{s['mean_length']:.1f}", _agreement(s), _interventions(c, s),
+            _kinds(s)]) + " |")
     return "\n".join(lines) + "\n"
 
 
