@@ -14,6 +14,7 @@ from PIL import Image
 
 from safemanip.cli import main
 from safemanip.scene.catalog import CONSTRAINT_TYPES
+from safemanip.semantics.semantic_backend import DEFAULT_EXAMPLES
 
 
 def run(capsys, *argv):
@@ -95,7 +96,7 @@ def test_constraint_matrix_prints_both_tables_and_json(capsys, tmp_path):
     assert code == 0, err
     assert "Table III" in out and "Table IV" in out and "no_contact (GT)" in out
     result = json.loads(path.read_text())
-    assert result["trials"] == 20 and result["backend"]["examples_file"] == "class_examples_v3.json"
+    assert result["trials"] == 20 and result["backend"]["examples_file"] == DEFAULT_EXAMPLES
     assert result["objects"] == "catalog"
     for row in result["table3"].values():
         assert abs(sum(row[c] for c in CONSTRAINT_TYPES) - 100.0) < 0.2

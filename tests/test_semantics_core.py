@@ -73,17 +73,19 @@ def test_object_answer_validation():
     good = {"image_description": "d", "explanation": "e", "objects": ["0: red mug", "2: soda can"]}
     assert parse_object_answer(good, LABELS, 2) == ([0, 2], "e", "d")
     bad_cases = [
-        ({**good, "objects": ["0: red mug"]}, "at least 2"),
+        ({**good, "objects": ["0: red mug"]}, "1 distinct objects .* must name 2"),
         ({**good, "objects": ["0: red mug", "7: piano"]}, "piano"),
-        ({**good, "objects": ["0: red mug", "0: red mug"]}, "distinct"),
-        ({**good, "extra": 1}, "unexpected keys"),
-        ({"objects": good["objects"], "explanation": "e"}, "image_description"),
-        ({**good, "explanation": 3}, "expected string"),
+        ({**good, "objects": ["0: red mug", "0: red mug"]}, "1 distinct objects"),
+        ({**good, "objects": ["0: red mug", "1: toy sheep", "2: soda can"]}, "at most 2"),
+        ({**good, "objects": "0: red mug"}, "expected array"),
         (["not", "an", "object"], "expected object"),
     ]
     for answer, message in bad_cases:
         with pytest.raises(SchemaError, match=message):
             parse_object_answer(answer, LABELS, 2)
+    # what a served model adds or leaves out around the objects is not held against it (the objects are checked)
+    for loose in ({**good, "extra": 1}, {"objects": good["objects"], "explanation": "e"}, {**good, "explanation": 3}):
+        assert parse_object_answer(loose, LABELS, 2)[0] == [0, 2]
 
 
 def test_constraint_answer_validation():
