@@ -235,7 +235,7 @@ def finding_table2() -> tuple[str, str, str]:
     parts, outcomes, complete = [], [], True
     for k in (2, 3):
         conservative = pick(policies, k=k, selector="dynamic-knn", constraints="conservative")
-        for selector in ("dynamic-knn", "dynamic-vlm"):
+        for selector in ("dynamic-knn", "semantic"):
             semantic = pick(policies, k=k, selector=selector, constraints="vlm")
             if semantic is None or conservative is None:
                 continue
@@ -243,8 +243,14 @@ def finding_table2() -> tuple[str, str, str]:
             outcomes.append(compare(semantic, conservative))
             parts.append(f"π_{k}: {name(semantic)} + {name(semantic, 'constraints')} {pct(semantic)} vs dynamic-kNN + "
                          f"conservative {pct(conservative)}")
+        best = pick(policies, k=k, selector="semantic", constraints="vlm")
+        reference = pick(policies, k=k, selector="privileged-criticality", constraints="ground-truth")
+        if best is not None and reference is not None:
+            parts.append(f"π_{k}: reference (privileged by true criticality + ground-truth types) {pct(reference)}, "
+                         f"the semantic setting {pct(best)}")
     bound = "; ".join(f"N={r['cell']['n_objects']}, avoiding {r['cell']['policy_constraints']}: {pct(r)}" for r in bounds)
-    compared = lambda c: c.constraints == "vlm" or (c.selector == "dynamic-knn" and c.constraints == "conservative")  # noqa: E731
+    compared = lambda c: c.constraints == "vlm" and c.selector in ("dynamic-knn", "semantic") or (  # noqa: E731
+        c.selector == "dynamic-knn" and c.constraints == "conservative")
     return ("; ".join(parts) or "not measured yet", bound,
             verdict(outcomes, complete, missing_cells("table2", compared)))
 
