@@ -305,6 +305,7 @@ def test_a_worker_whose_start_up_data_is_cut_off_exits_without_a_traceback():
     finally:
         mpc.set_spawning_popen(None)
     data = buffer.getvalue()
+    # what a spawned worker itself does with its start-up data (multiprocessing's own format, made by this test)
     load = "import pickle, sys; p = pickle.load(sys.stdin.buffer); print(type(p).__name__, len(p._args[0]))"
     for cut, code, stdout in ((len(data), 0, "QuietSpawnProcess 50000\n"), (len(data) // 2, 1, "")):
         done = subprocess.run([sys.executable, "-c", load], input=data[:cut], capture_output=True, env=ENV, timeout=120)

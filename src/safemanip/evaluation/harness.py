@@ -57,8 +57,8 @@ def _eval_bounds() -> dict:
 EVAL_BOUNDS = _eval_bounds()
 """The ranges of ``EvalRequest``'s numeric fields: ``prepare`` checks a request against them and ``safemanip eval``
 builds its flags' types from them."""
-METRIC_SELECTORS = ("static-knn", "dynamic-knn", "dynamic-radius", "privileged", "privileged-criticality", "semantic",
-                    "dynamic-vlm")
+METRIC_SELECTORS = tuple(name for name in OBJECT_SELECTORS if name != "full")
+"""The selectors that pick k of N objects (named in the messages that ask for one)."""
 
 
 class EvalConfigError(ValueError):
@@ -478,11 +478,10 @@ def describe(prep: Prepared) -> dict:
     return {"policy": policy, "algorithm": meta.get("algorithm"), "k": spec.k,
             "policy_constraints": spec.policy_constraints, "n_objects": prep.n_objects, "semantics": req.semantics,
             "selector": spec.selector, "constraints": spec.constraints, "judge": req.judge, "pad": spec.pad,
-            "interval": spec.options.interval, "shield": spec.shield, "vlm": ({"backend": spec.options.vlm_backend, "model": req.vlm_model,
-                                                         "base_url": mask_url(req.vlm_base_url), "cache": req.vlm_cache,
-                                                         "cache_only": req.vlm_cache_only}
-                                                        if spec.selector in USES_VLM or spec.constraints in USES_VLM
-                                                        else None),
+            "interval": spec.options.interval, "shield": spec.shield,
+            "vlm": ({"backend": spec.options.vlm_backend, "model": req.vlm_model, "base_url": mask_url(req.vlm_base_url),
+                     "cache": req.vlm_cache, "cache_only": req.vlm_cache_only}
+                    if spec.selector in USES_VLM or spec.constraints in USES_VLM else None),
             "env_kwargs": spec.env_kwargs, "episodes": len(prep.seeds), "seed": req.seed_block,
             "seeds": [prep.seeds[0], prep.seeds[-1]], "backend": req.backend, "workers": req.workers}
 

@@ -11,10 +11,11 @@ prototype per class (the normalised mean example embedding) under the same rule 
 v1 is plain argmax over v1's prototypes. Rule and margin are chosen on the examples only
 (``select_margin``: cross-validation for v3, leave-one-out for v2), never on a test set.
 
-Object ranking (a stand-in for the VLM's "proximity + safety" criteria): extrapolate the box's
-recent motion over a short horizon, measure each object's clearance to that swept segment, turn
-clearance into a contact risk, weight it by how bad contact would be given the class probabilities,
-and take the top k. The query path is numpy only; embeddings are computed once per name (one batched
+Object ranking (``RANKINGS``, a stand-in for the VLM's "proximity + safety" criteria): by default criticality
+first (``selection.selectors.criticality_first`` on the decided classes); the earlier ``risk`` ranking extrapolates
+the box's recent motion over a short horizon, measures each object's clearance to that swept segment, turns
+clearance into a contact risk, weights it by how bad contact would be given the class probabilities, and takes the
+top k. The query path is numpy only; embeddings are computed once per name (one batched
 model call per scene in ``prepare``), so a query costs well under a millisecond after warm-up.
 """
 

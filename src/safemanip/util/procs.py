@@ -9,7 +9,7 @@ fallback (e.g. a worker blocked on a pipe write when its parent was killed with 
 A worker that is still starting when its parent stops is ended quietly from both sides: the parent holds
 SIGINT/SIGTERM back while it starts workers (``signals_deferred``), so that it never stops half-way through
 sending a worker its start-up data and every worker it started is one it knows to end; and a worker of
-``quiet_spawn_context`` that finds its start-up data cut off (the parent was killed) exits without a traceback."""
+``QuietSpawnContext`` that finds its start-up data cut off (the parent was killed) exits without a traceback."""
 
 from __future__ import annotations
 
@@ -46,7 +46,7 @@ def die_with_parent(parent_pid: int | None = None, poll_s: float = 0.5, ignore_s
     ``ignore_sigint`` a Ctrl-C in the terminal (sent to the whole process group) is left to the parent,
     which stops the workers."""
     parent_pid = parent_pid or os.getppid()
-    if getattr(sys.excepthook, "_start_up_only", False):  # started: errors are reported again (quiet_spawn_context)
+    if getattr(sys.excepthook, "_start_up_only", False):  # started: errors are reported again (QuietSpawnContext)
         sys.excepthook = sys.__excepthook__
     if ignore_sigint:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
