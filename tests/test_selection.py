@@ -89,20 +89,37 @@ def test_privileged_prefers_fragile_then_tops_up_with_nearest_others():
 
 def test_criticality_first_fills_the_slots_fragile_then_soft_then_durable():
     classes = ["fragile", "durable", "fragile", "soft"]  # 3 (soft) is the nearest, 1 (durable) the next
-    box = BOX
-    assert criticality_first(box, np.c_[np.array(POS), np.zeros(4)], classes, 2) == [2, 0]
-    assert criticality_first(box, np.c_[np.array(POS), np.zeros(4)], classes, 3) == [2, 0, 3]  # soft before durable
-    assert criticality_first(box, np.c_[np.array(POS), np.zeros(4)], classes, 4) == [2, 0, 3, 1]
-    sel = PrivilegedCriticality()
+    box, positions = BOX, np.c_[np.array(POS), np.zeros(4)]
+    assert criticality_first(box, positions, classes, 2, soft_reach=0.0) == [2, 0]
+    assert criticality_first(box, positions, classes, 3, soft_reach=0.0) == [2, 0, 3]  # soft before durable
+    assert criticality_first(box, positions, classes, 4, soft_reach=0.0) == [2, 0, 3, 1]
+    sel = PrivilegedCriticality(soft_reach=0.0)
     sel.reset(view(0, POS, classes), 3)
     assert sel.select(view(0, POS, classes), 3) == [2, 0, 3]
     # where privileged tops up with the nearest object of any class, the durable one (1) can take a soft one's slot
     far_soft = ["fragile", "durable", "durable", "soft"]
     moved = [[0.9, 0.0], [0.2, 0.0], [0.0, 0.5], [0.0, 0.6]]
     assert PrivilegedSelector().select(view(0, moved, far_soft), 2) == [0, 1]
-    assert PrivilegedCriticality().select(view(0, moved, far_soft), 2) == [0, 3]
+    assert PrivilegedCriticality(soft_reach=0.0).select(view(0, moved, far_soft), 2) == [0, 3]
     with pytest.raises(ValueError, match="privileged_classes"):
         PrivilegedCriticality().select(view(0, POS), 2)
+
+
+def test_a_soft_object_within_reach_ranks_with_the_fragile_ones():
+    """soft_reach: the soft object 0.1 m from the box (3) is about to be met and takes a slot ahead of the fragile
+    one 0.9 m away (0); beyond the reach it waits behind every fragile object; durable ones stay last."""
+    classes = ["fragile", "durable", "fragile", "soft"]
+    box, positions = BOX, np.c_[np.array(POS), np.zeros(4)]
+    assert criticality_first(box, positions, classes, 2, soft_reach=0.15) == [3, 2]
+    assert criticality_first(box, positions, classes, 2, soft_reach=0.05) == [2, 0]
+    assert criticality_first(box, positions, classes, 4, soft_reach=0.15) == [3, 2, 0, 1]
+    assert criticality_first(box, positions, ["soft", "durable", "soft", "durable"], 2, soft_reach=0.3) == [2, 0]
+    assert PrivilegedCriticality(soft_reach=0.15).select(view(0, POS, classes), 2) == [3, 2]
+    assert make_object_selector("privileged-criticality", SelectorOptions(soft_reach=0.15)).soft_reach == 0.15
+    with pytest.raises(ValueError, match="soft_reach"):
+        criticality_first(box, positions, classes, 2, soft_reach=-0.1)
+    with pytest.raises(ValueError, match="soft_reach"):
+        PrivilegedCriticality(soft_reach=-1)
 
 
 def test_display_names_never_call_the_offline_classifier_a_vlm():

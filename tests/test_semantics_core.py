@@ -337,16 +337,22 @@ def test_criticality_ranking_puts_every_fragile_object_first_then_soft_then_dura
     """The default ranking (the ``semantic`` selector): the toy sheep right beside the box never outranks the red mug
     or the wine glass, whatever its distance; the next class fills only the slots the fragile ones leave."""
     from safemanip.semantics.base import ObjectQuery
-    backend = toy_backend()
-    assert backend.ranking == "criticality"
+    assert toy_backend().ranking == "criticality"
+    backend = toy_backend(soft_reach=0.0)
     view = make_view(vel=(0.5, 0.0))
     assert backend.select_objects(ObjectQuery(view=view, k=1, order=[0, 1, 2, 3])).ids == [0]  # mug 0.21 m, glass 0.40
     assert backend.select_objects(ObjectQuery(view=view, k=2, order=[0, 1, 2, 3])).ids == [0, 3]
     assert backend.select_objects(ObjectQuery(view=view, k=3, order=[0, 1, 2, 3])).ids == [0, 3, 2]  # then the can
     answer = backend.select_objects(ObjectQuery(view=view, k=4, order=[0, 1, 2, 3]))
     assert answer.ids == [0, 3, 2, 1] and "fragile" in answer.explanation
+    # a soft object within soft_reach of the box ranks with the fragile ones: the can (0.30 m) before the glass (0.40)
+    reach = toy_backend(soft_reach=0.35)
+    assert reach.select_objects(ObjectQuery(view=view, k=2, order=[0, 1, 2, 3])).ids == [0, 2]
+    assert reach.describe()["soft_reach"] == 0.35
     with pytest.raises(ValueError, match="ranking"):
         toy_backend(ranking="nearest")
+    with pytest.raises(ValueError, match="soft_reach"):
+        toy_backend(soft_reach=-0.1)
 
 
 def test_material_cues_decide_first_the_strictest_material_winning():

@@ -93,7 +93,7 @@ EVAL_FLAGS = {"--policy": "policy", "--planner": "planner", "--n-objects": "n_ob
               "--episodes": "episodes", "--seed-block": "seed_block", "--interval": "interval", "--pad": "pad",
               "--max-episode-steps": "max_episode_steps", "--layout": "layout", "--gate-share": "gate_share",
               "--exit-share": "exit_share", "--embodiment": "embodiment", "--chunk-size": "chunk_size", "--out": "out",
-              "--shield": "shield"}
+              "--shield": "shield", "--soft-reach": "soft_reach"}
 """The ``EvalRequest`` fields with a flag (the compute and semantic-backend options are shared with the sweep:
 ``add_compute_backend``, ``add_vlm_options``)."""
 

@@ -27,7 +27,7 @@ import numpy as np
 from safemanip.scene.catalog import CONSTRAINT_OF_CLASS
 from safemanip.selection.base import ConstraintSelector, ObjectSelector
 from safemanip.selection.reducer import Reducer
-from safemanip.selection.selectors import DEFAULT_INTERVAL, criticality_first
+from safemanip.selection.selectors import DEFAULT_INTERVAL, DEFAULT_SOFT_REACH, criticality_first
 from safemanip.selection.view import CLASS_OF_CONSTRAINT, EnvViewBuilder
 
 CATEGORIES = ("success", "top_box", "out_of_workspace", "collision_unselected", "collision_selected",
@@ -86,12 +86,14 @@ def shield_constraints(object_selector, constraint_selector, assigned: list[str]
 
 def run_episode(env, actor: Callable[[np.ndarray], np.ndarray], reducer: Reducer, object_selector: ObjectSelector,
                 constraint_selector: ConstraintSelector, seed: int, *, builder: EnvViewBuilder | None = None,
-                after_reset: Callable | None = None, on_step: Callable | None = None, shield=None) -> dict:
+                after_reset: Callable | None = None, on_step: Callable | None = None, shield=None,
+                soft_reach: float = DEFAULT_SOFT_REACH) -> dict:
     """Roll one episode out and return its record (plain types, ready for CSV/JSON).
 
     ``after_reset(env)`` may edit the scene right after the reset (tests place objects by hand);
     ``on_step(env, info, ids)`` sees every step (the demo records frames and margins with it); ``shield`` (a safety
-    filter, ``safety.SHIELDS``) may override the policy's action every step.
+    filter, ``safety.SHIELDS``) may override the policy's action every step; ``soft_reach`` is the reference oracle's
+    (``criticality_first``), the same as the selectors'.
     """
     builder = builder or EnvViewBuilder()
     env.reset(seed=int(seed))
@@ -131,7 +133,7 @@ def run_episode(env, actor: Callable[[np.ndarray], np.ndarray], reducer: Reducer
         if not changes or changes[-1][1] != key:
             changes.append((t, key))
         if want and t % DEFAULT_INTERVAL == 0 and view.privileged_classes is not None:
-            reference = criticality_first(view.box_position, view.positions, view.privileged_classes, want)
+            reference = criticality_first(view.box_position, view.positions, view.privileged_classes, want, soft_reach)
             reference_queries += 1
             reference_agreed += tuple(sorted(reference)) == key
         obs = reducer(state, ids, assigned)

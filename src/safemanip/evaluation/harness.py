@@ -33,7 +33,7 @@ from safemanip.evaluation.episode import CATEGORIES, CATEGORY_LABELS, SAFETY_VIO
 from safemanip.evaluation.parallel import BACKENDS, EvalSpec, PartialRun, WorkerFailure, run_episodes
 from safemanip.evaluation.stats import rate_line, wilson_interval
 from safemanip.evaluation.registry import CONSTRAINT_SELECTORS, OBJECT_SELECTORS, USES_VLM, SelectorOptions
-from safemanip.selection.selectors import DEFAULT_INTERVAL
+from safemanip.selection.selectors import DEFAULT_INTERVAL, DEFAULT_SOFT_REACH
 from safemanip.semantics.base import VLM_BACKENDS
 from safemanip.util.files import OutputLock, atomic_open, atomic_write_text, check_output_dir
 from safemanip.util.procs import stop_on_signals
@@ -51,7 +51,7 @@ def _eval_bounds() -> dict:
     return {"n_objects": Bounds(0, MAX_OBJECTS), "episodes": Bounds(1, SEED_STRIDE),
             "seed_block": Bounds(0, 2**31 // SEED_STRIDE - 1), "interval": Bounds(1, 100_000),
             "max_episode_steps": Bounds(1, MAX_EPISODE_STEPS), "gate_share": Bounds(0, 1), "exit_share": Bounds(0, 1),
-            "chunk_size": Bounds(1, 100_000)}
+            "chunk_size": Bounds(1, 100_000), "soft_reach": Bounds(0, 10)}
 
 
 EVAL_BOUNDS = _eval_bounds()
@@ -119,6 +119,9 @@ class EvalRequest:
     """Robot to evaluate on (default: the one the policy was trained on; another one is refused)."""
     chunk_size: int | None = None
     """Episodes per worker task (default: about 8 tasks per worker)."""
+    soft_reach: float | None = None
+    """Semantic and privileged-criticality selection: a soft object within this distance of the held box [m] ranks
+    with the fragile ones (``selection.selectors.criticality_first``; default: DEFAULT_SOFT_REACH)."""
     shield: str | None = None
     """A safety filter around the policy: 'brake' overrides an action after which the held box could not stop short
     of a protected object (docs/safety.md; default: none)."""
@@ -341,7 +344,8 @@ def prepare(req: EvalRequest) -> Prepared:
                               vlm_base_url=req.vlm_base_url, vlm_cache=req.vlm_cache,
                               vlm_cache_only=req.vlm_cache_only, vlm_timeout=req.vlm_timeout,
                               vlm_episode_budget=req.vlm_episode_budget, vlm_run_budget=req.vlm_run_budget,
-                              vlm_max_failures=req.vlm_max_failures)
+                              vlm_max_failures=req.vlm_max_failures,
+                              soft_reach=DEFAULT_SOFT_REACH if req.soft_reach is None else float(req.soft_reach))
     constraints = req.constraint_selector or ("conservative" if meta["constraints"] == "conservative" else "ground-truth")
     spec = EvalSpec(actor_arrays=arrays, k=k, policy_constraints=meta["constraints"], env_kwargs=env_kwargs,
                     selector=selector, constraints=constraints, options=options, pad=req.pad,

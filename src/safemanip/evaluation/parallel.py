@@ -104,7 +104,8 @@ def run_chunk(spec: EvalSpec, seeds: list[int], on_record: Callable[[dict], None
                 shield = make_shield(spec.shield)
             records = []
             for s in seeds:
-                records.append(run_episode(env, actor, reducer, osel, csel, s, builder=builder, shield=shield))
+                records.append(run_episode(env, actor, reducer, osel, csel, s, builder=builder, shield=shield,
+                                           soft_reach=spec.options.soft_reach))
                 if on_record is not None:
                     on_record(records[-1])
             return records

@@ -11,9 +11,10 @@ from dataclasses import dataclass
 from typing import Callable
 
 from safemanip.selection.base import ConstraintSelector, ObjectSelector
-from safemanip.selection.selectors import (DEFAULT_INTERVAL, DEFAULT_RADIUS, ConservativeConstraints, DynamicKNN,
-                                           DynamicRadius, FullSelector, GroundTruthConstraints, PrivilegedCriticality,
-                                           PrivilegedSelector, StaticKNN)
+from safemanip.selection.selectors import (DEFAULT_INTERVAL, DEFAULT_RADIUS, DEFAULT_SOFT_REACH,
+                                           ConservativeConstraints, DynamicKNN, DynamicRadius, FullSelector,
+                                           GroundTruthConstraints, PrivilegedCriticality, PrivilegedSelector,
+                                           StaticKNN)
 
 
 @dataclass(frozen=True)
@@ -38,6 +39,9 @@ class SelectorOptions:
     """Seconds of openai queries per worker process before every later query falls back."""
     vlm_max_failures: int | None = None
     """Consecutive failed openai queries that open the circuit breaker (None: 5)."""
+    soft_reach: float = DEFAULT_SOFT_REACH
+    """semantic (offline) and privileged-criticality: a soft object within this distance of the held box [m] ranks
+    with the fragile ones (``criticality_first``)."""
 
 
 def _vlm_backend(opts: SelectorOptions, ranking: str = "criticality"):
@@ -47,7 +51,8 @@ def _vlm_backend(opts: SelectorOptions, ranking: str = "criticality"):
 
     backend = make_backend(opts.vlm_backend, model=opts.vlm_model, base_url=opts.vlm_base_url,
                            cache_dir=opts.vlm_cache, cache_mode="cache_only" if opts.vlm_cache_only else "readwrite",
-                           timeout_s=opts.vlm_timeout or 30.0, ranking=ranking)
+                           timeout_s=opts.vlm_timeout or 30.0, ranking=ranking,
+                           soft_reach=opts.soft_reach)
     if opts.vlm_backend != "openai":  # the offline classifier neither fails nor waits
         return backend
     return GuardedBackend(backend, max_failures=opts.vlm_max_failures or DEFAULT_MAX_FAILURES,
@@ -74,7 +79,7 @@ OBJECT_SELECTORS: dict[str, Callable[[SelectorOptions], ObjectSelector]] = {
     "dynamic-knn": lambda o: DynamicKNN(o.interval),
     "dynamic-radius": lambda o: DynamicRadius(o.interval, o.radius),
     "privileged": lambda o: PrivilegedSelector(o.interval),
-    "privileged-criticality": lambda o: PrivilegedCriticality(o.interval),
+    "privileged-criticality": lambda o: PrivilegedCriticality(o.interval, o.soft_reach),
     "full": lambda o: FullSelector(),
     "semantic": _semantic("criticality", "semantic"),
     "dynamic-vlm": _semantic("risk", "dynamic-vlm"),

@@ -18,8 +18,9 @@ Object selectors (``OBJECT_SELECTORS``)
   ``privileged``   the k nearest objects whose ground-truth class is fragile (re-picked on the same
                    schedule as dynamic-knn), then the nearest others if there are fewer than k fragile
                    ones. Reads ``SceneView.privileged_classes``; an oracle, not a deployable method;
-  ``privileged-criticality`` the same oracle by true criticality: fragile, then soft, then durable
-                   (``criticality_first``); the reference for semantic selection with soft objects;
+  ``privileged-criticality`` the same oracle by true criticality: fragile objects and soft ones within reach,
+                   then other soft ones, then durable ones (``criticality_first``); the reference for semantic
+                   selection;
   ``full``         every object in id order: the layout a k == N full-state policy was trained on;
   ``semantic``     ``semantics.selectors.DynamicVLMSelector``: a VLM (OpenAI-compatible backend), or offline the
                    classes decided from the names, ranked by ``criticality_first``;
@@ -43,6 +44,9 @@ from safemanip.selection.base import SceneView, nearest_ids
 
 DEFAULT_INTERVAL = 4  # paper Sec. V: Dynamic-kNN and Dynamic-VLM are queried every four time steps
 DEFAULT_RADIUS = 0.35  # dynamic-radius: about the box's half length plus one object footprint plus a step's travel
+DEFAULT_SOFT_REACH = 0.0
+"""criticality_first: a soft object whose centre is within this horizontal distance of the held box's centre [m] ranks
+with the fragile ones (0: every fragile object before any soft one). Chosen on development block 40 (docs/semantics.md)."""
 
 
 def _due(last_t: int | None, t: int, interval: int) -> bool:
@@ -120,38 +124,53 @@ class PrivilegedSelector(DynamicKNN):
         return ids
 
 
-CRITICALITY = ("fragile", "soft", "durable")
-"""Semantic classes from most to least safety-critical: a fragile object must not be touched, a soft one only
-gently, a durable one may be pushed."""
+def criticality_first(box_position: np.ndarray, positions: np.ndarray, classes, k: int,
+                      soft_reach: float = DEFAULT_SOFT_REACH) -> list[int]:
+    """The k most safety-critical objects, in tiers, nearest to the held box first within a tier (``nearest_ids``):
+    every fragile object and every soft one within ``soft_reach`` of the box; then the other soft ones; then the
+    durable ones. A later tier fills the k slots only when the earlier ones hold fewer than k objects.
 
-
-def criticality_first(box_position: np.ndarray, positions: np.ndarray, classes, k: int) -> list[int]:
-    """The k most safety-critical objects: every fragile one before any soft one before any durable one, nearest
-    to the held box first within a class (``nearest_ids``). The next class fills the k slots only when the more
-    critical ones are fewer than k. One rule for the privileged reference (``PrivilegedCriticality``, true
-    classes) and the semantic selector (``semantics.semantic_backend``, the classes it decided)."""
+    Why soft objects within reach join the fragile tier: a fragile object must never be touched, a soft one only
+    slowly, so far away the fragile one matters more; but a soft object the box is about to meet matters more than a
+    fragile one it will pass at a distance, and a policy that never sees it hits it at speed ("among the objects that
+    might come in contact, choose the more fragile ones", the paper's prompt). One rule for the privileged reference
+    (``PrivilegedCriticality``, true classes) and the semantic selector (``semantics.semantic_backend``, the classes
+    it decided)."""
+    if soft_reach < 0:
+        raise ValueError(f"soft_reach must be >= 0 m, got {soft_reach}")
+    box = np.asarray(box_position, float)[:2]
+    near = np.hypot(*(np.asarray(positions, float)[:, :2] - box).T) <= soft_reach if len(classes) else []
+    tiers = ([i for i, c in enumerate(classes) if c == "fragile" or (c == "soft" and near[i])],
+             [i for i, c in enumerate(classes) if c == "soft" and not near[i]],
+             [i for i, c in enumerate(classes) if c not in ("fragile", "soft")])
     ids: list[int] = []
-    for cls in CRITICALITY:
+    for members in tiers:
         if len(ids) >= k:
             break
-        members = [i for i, c in enumerate(classes) if c == cls]
         ids += nearest_ids(box_position, positions, k - len(ids), candidates=members)
     return ids
 
 
 class PrivilegedCriticality(DynamicKNN):
-    """Oracle reference for semantic selection: ``criticality_first`` on the ground-truth classes (the k nearest
-    fragile objects, then the nearest soft ones, then the nearest durable ones), on the dynamic-knn schedule.
+    """Oracle reference for semantic selection: ``criticality_first`` on the ground-truth classes (the nearest
+    fragile objects and soft ones within reach, then the other soft ones, then durable ones), on the dynamic-knn
+    schedule.
 
     ``privileged`` tops up with the nearest objects of any class; with soft objects in the scene that lets a durable
     one take a slot while a soft one nearby goes unseen (Table II)."""
 
     name = "privileged-criticality"
 
+    def __init__(self, interval: int = DEFAULT_INTERVAL, soft_reach: float = DEFAULT_SOFT_REACH) -> None:
+        super().__init__(interval)
+        if soft_reach < 0:
+            raise ValueError(f"soft_reach must be >= 0 m, got {soft_reach}")
+        self.soft_reach = float(soft_reach)
+
     def _pick(self, view: SceneView, k: int) -> list[int]:
         if view.privileged_classes is None:
             raise ValueError("the privileged-criticality selector needs SceneView.privileged_classes")
-        return criticality_first(view.box_position, view.positions, view.privileged_classes, k)
+        return criticality_first(view.box_position, view.positions, view.privileged_classes, k, self.soft_reach)
 
 
 class DynamicRadius(DynamicKNN):

@@ -32,7 +32,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from safemanip.scene.catalog import CONSTRAINT_OF_CLASS, SEMANTIC_CLASSES
-from safemanip.selection.selectors import criticality_first
+from safemanip.selection.selectors import DEFAULT_SOFT_REACH, criticality_first
 from safemanip.semantics.base import (BackendError, ConstraintAnswer, ConstraintQuery, ObjectAnswer, ObjectQuery,
                                       object_label)
 
@@ -381,12 +381,16 @@ class SemanticBackend:
                  horizon_s: float = 0.75, box_half_width_m: float = 0.06,
                  risk_length_m: float = 0.10, class_weights: dict[str, float] | None = None,
                  task_direction: Sequence[float] | None = None, assumed_speed_mps: float = 0.3,
-                 min_speed_mps: float = 0.02, ranking: str = "criticality") -> None:
+                 min_speed_mps: float = 0.02, ranking: str = "criticality",
+                 soft_reach: float = DEFAULT_SOFT_REACH) -> None:
         if temperature <= 0:
             raise ValueError(f"temperature must be > 0, got {temperature}")
         if ranking not in RANKINGS:
             raise ValueError(f"ranking must be one of {RANKINGS}, got {ranking!r}")
+        if soft_reach < 0:
+            raise ValueError(f"soft_reach must be >= 0 m, got {soft_reach}")
         self.ranking = ranking
+        self.soft_reach = float(soft_reach)
         self.name = "semantic"
         self._embed = embedder if embedder is not None else minilm_embedder()
         if examples is not None:
@@ -424,7 +428,8 @@ class SemanticBackend:
                 "margin": self.margin,
                 "temperature": self.temperature, "horizon_s": self.horizon_s,
                 "box_half_width_m": self.box_half_width_m, "risk_length_m": self.risk_length_m,
-                "class_weights": self.class_weights, "ranking": self.ranking}
+                "class_weights": self.class_weights, "ranking": self.ranking,
+                "soft_reach": self.soft_reach}
 
     # ----------------------------------------------------------------- classification
 
@@ -556,7 +561,8 @@ class SemanticBackend:
         nearest to the held box within a class."""
         view = query.view
         classes = self.classify(view.names)
-        ids = criticality_first(np.asarray(view.box_position, float), np.asarray(view.positions, float), classes, n)
+        ids = criticality_first(np.asarray(view.box_position, float), np.asarray(view.positions, float), classes, n,
+                                self.soft_reach)
         box = np.asarray(view.box_position, float)[:2]
         explanation = "; ".join(
             f"{object_label(i, view.names[i])}: {classes[i]}, "
