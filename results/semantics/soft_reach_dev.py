@@ -43,12 +43,17 @@ TABLE = Path(__file__).with_name("soft-reach-dev40.md")
 
 def run_cell(out: Path, reach: float, policy: str, n: int, semantics: str, selector: str, constraints: str) -> dict:
     folder = out / f"reach{reach:g}" / f"{policy}__{selector}"
-    if (folder / "summary.json").exists():
-        return json.loads((folder / "summary.json").read_text())
-    return evaluate(EvalRequest(policy=policy, n_objects=n, semantics=semantics, selector=selector,
-                                constraint_selector=constraints, judge="ground-truth", episodes=EPISODES,
-                                seed_block=BLOCK, layout="gate", gate_share=1.0, soft_reach=reach, workers=2,
-                                out=str(folder)))["summary"]
+    if (folder / "summary.json").exists():  # kept only if whole: a cut-off cell runs again
+        summary = json.loads((folder / "summary.json").read_text())
+        if summary["episodes"] == EPISODES and not summary.get("interrupted") and not summary.get("failed"):
+            return summary
+    summary = evaluate(EvalRequest(policy=policy, n_objects=n, semantics=semantics, selector=selector,
+                                   constraint_selector=constraints, judge="ground-truth", episodes=EPISODES,
+                                   seed_block=BLOCK, layout="gate", gate_share=1.0, soft_reach=reach, workers=2,
+                                   out=str(folder)))["summary"]
+    if summary.get("interrupted") or summary.get("failed"):
+        raise SystemExit(f"{folder}: cut off after {summary['episodes']} episodes; run the script again to resume")
+    return summary
 
 
 def main() -> None:
