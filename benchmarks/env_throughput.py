@@ -82,9 +82,9 @@ def raw_rate(model, data, ctrls, acts, starts, actuators) -> float:
 
 
 def _record_commands(env: SlideOutEnv) -> None:
-    """Wrap the embodiment's command so each step's ctrl/act (after the controller ran) are kept."""
-    robot = env.robot
-    original = robot.command_velocity
+    """Wrap the embodiment's controller so each step's ctrl/act (after the controller ran) are kept."""
+    controller = env.controller
+    original = controller.command_velocity
 
     def command_velocity(model, data, binding, velocity, dt):
         phases = original(model, data, binding, velocity, dt)
@@ -92,7 +92,7 @@ def _record_commands(env: SlideOutEnv) -> None:
         env._bench_act = data.act.copy()
         return phases
 
-    robot.command_velocity = command_velocity
+    controller.command_velocity = command_velocity
 
 
 def component_costs(env: SlideOutEnv, repeats: int = 2000) -> tuple[float, float]:
@@ -102,7 +102,7 @@ def component_costs(env: SlideOutEnv, repeats: int = 2000) -> tuple[float, float
     saved = _physics_state(env.model, env.data)
     t0 = time.perf_counter()
     for _ in range(repeats):
-        env.robot.command_velocity(m, d, b, velocity, 0.05)
+        env.controller.command_velocity(m, d, b, velocity, 0.05)
     controller = (time.perf_counter() - t0) / repeats * 1e6
     mujoco.mj_setState(m, d, saved, STATE)
     t0 = time.perf_counter()

@@ -15,12 +15,13 @@ import time
 
 from safemanip.rl.collector import make_pool
 from safemanip.rl.config import TrainConfig
+from safemanip.rl.envs import env_builder
 
 
 def rate(backend: str, seconds: float, workers: int, k: int) -> float:
     cfg = TrainConfig(k=k, n_collectors=workers, envs_per_collector=4, learning_starts=10**9, batch_size=32,
                       backend=backend)
-    pool = make_pool(cfg, cfg.rollout_env_kwargs, seed=0)
+    pool = make_pool(cfg, env_builder(cfg.rollout_env_kwargs), seed=0)
     try:
         pool.get(120)  # start-up (process spawn / ray.init) is not counted
         got, t0 = 0, time.perf_counter()

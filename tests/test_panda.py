@@ -266,7 +266,7 @@ def test_nan_actions_are_refused_with_a_message():
 
 
 def test_ik_building_blocks_match_their_textbook_forms():
-    from safemanip.control.diff_ik import dls_joint_velocity, orientation_error
+    from safemanip.scene.kinematics import dls_joint_velocity, orientation_error
 
     rng = np.random.default_rng(0)
     for _ in range(5):

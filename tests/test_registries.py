@@ -36,6 +36,15 @@ def test_a_robot_is_one_registry_line(monkeypatch):
     assert planner._space is not None
 
 
+def test_every_robot_names_a_controller():
+    """The controllers live a layer above the models (``control/cartesian.py``); each model names its own, and a
+    model subclass (``StubbyHand``) drives with its parent's."""
+    from safemanip.control.cartesian import CONTROLLERS, HandController, make_controller
+
+    assert all(robot.controller in CONTROLLERS for robot in embodiment.EMBODIMENTS.values())
+    assert isinstance(make_controller(StubbyHand()), HandController)
+
+
 def test_an_unknown_robot_is_refused_with_the_registry_s_names():
     with pytest.raises(ValueError, match="embodiment"):
         SlideOutEnv(n_objects=1, embodiment="stubby")

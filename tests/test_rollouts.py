@@ -13,12 +13,18 @@ import pytest
 from safemanip.env.observation import ROBOT_DIM, SLOT_DIM, observation_dim
 from safemanip.rl.collector import CHUNK, TRANSITION_KEYS, LocalPool, RayPool, RolloutWorker
 from safemanip.rl.config import ConfigError, TrainConfig
-from safemanip.rl.envs import make_env
-import safemanip.selection.training_env  # noqa: F401  registers the selection-aware env (as safemanip train does)
+from safemanip.rl.envs import env_builder, make_env
+from safemanip.selection.training_env import SelectedSlotsEnv
 
 ENV = {"n_objects": 2, "constraints": "conservative", "max_episode_steps": 40, "slot_order": "nearest"}
 CFG = dict(k=2, max_episode_steps=40, envs_per_collector=2, n_collectors=1, random_steps=10**6,
            learning_starts=2 * CHUNK, batch_size=32, env_steps_per_update=4.0)
+
+
+def training_env(cfg: TrainConfig):
+    """The env ``cfg``'s rollouts run, built as ``safemanip train`` has ``rl.train.train`` build it: the
+    selection-aware env's factory passed in when the config asks for it."""
+    return make_env(cfg.rollout_env_kwargs, SelectedSlotsEnv if cfg.selection_aware else None)
 
 
 def check_meaning(chunk: dict[str, np.ndarray], n_envs: int, episodes: list | None = None) -> None:
@@ -104,7 +110,7 @@ def test_coloured_exploration_noise_is_correlated_within_an_episode_and_white_no
 
 def test_local_process_pool_streams_the_same_transitions_as_the_worker_class():
     cfg = TrainConfig(**CFG)
-    pool = LocalPool(cfg, ENV, seed=5, env_steps=0, updates=0)
+    pool = LocalPool(cfg, env_builder(ENV), seed=5, env_steps=0, updates=0)
     try:
         chunk, _ = pool.get(timeout=60)
     finally:
@@ -124,7 +130,7 @@ def test_ray_actors_give_the_same_transitions_as_local_workers():
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
         cfg = TrainConfig(**{**CFG, "random_steps": CHUNK, "backend": "ray"})
-        pool = RayPool(cfg, ENV, seed=7, env_steps=0, updates=0)
+        pool = RayPool(cfg, env_builder(ENV), seed=7, env_steps=0, updates=0)
         arrays = actor_arrays(Actor(observation_dim(2), 3, (16, 16)))
         pool.broadcast(arrays)
         chunks = []
@@ -155,7 +161,7 @@ def test_selection_aware_env_shows_k_selected_slots_and_judges_all_objects():
     from safemanip.selection.view import EnvViewBuilder
 
     cfg = TrainConfig(k=2, scene_objects=5, max_episode_steps=30)
-    env = make_env(cfg.rollout_env_kwargs)
+    env = training_env(cfg)
     obs, info = env.reset(seed=11)
     assert obs.shape == (observation_dim(2),) and len(info["names"]) == 5
     # the same pipeline by hand, as evaluation/episode.py runs it at deployment
@@ -178,7 +184,7 @@ def test_selection_aware_env_shows_k_selected_slots_and_judges_all_objects():
 
 def test_dynamic_radius_training_env_leaves_absent_slots_empty():
     cfg = TrainConfig(k=4, scene_objects=6, network="set", selector="dynamic-radius", selection_radius=0.3)
-    env = make_env(cfg.rollout_env_kwargs)
+    env = training_env(cfg)
     obs, _ = env.reset(seed=2)
     slots = obs[ROBOT_DIM:].reshape(4, SLOT_DIM)
     present = slots[:, 6:9].sum(1) > 0.5
@@ -193,7 +199,7 @@ def test_mixed_clutter_draws_each_scene_size_pads_flat_slots_with_dummies_and_is
     from safemanip.selection.reducer import DUMMY_POSITIONS
 
     cfg = TrainConfig(k=4, scene_objects_min=2, max_episode_steps=30)
-    env, again = make_env(cfg.rollout_env_kwargs), make_env(cfg.rollout_env_kwargs)
+    env, again = training_env(cfg), training_env(cfg)
     sizes = []
     for episode in range(24):
         seed = 5 if episode == 0 else None  # seeded once, as a rollout worker does
@@ -210,7 +216,7 @@ def test_mixed_clutter_draws_each_scene_size_pads_flat_slots_with_dummies_and_is
             assert np.all(dummies[:, 3:6] == 0) and np.all(dummies[:, 6:9] == [1, 0, 0])
     assert set(sizes) == {2, 3, 4}  # every size from scene_objects_min to k comes up
     # a set network gets absent (all-zero) slots instead
-    sparse = make_env(TrainConfig(k=4, scene_objects_min=1, network="set").rollout_env_kwargs)
+    sparse = training_env(TrainConfig(k=4, scene_objects_min=1, network="set"))
     for seed in range(20):
         obs, info = sparse.reset(seed=seed)
         n = len(info["names"])
@@ -225,7 +231,7 @@ def test_mixed_selectors_draw_knn_or_radius_per_episode_reproducibly_for_set_net
     """``selector='mixed'``: each episode's selector is drawn from the env's seeded generator; a dynamic-radius
     episode leaves the slots of objects beyond the radius absent (zero), a dynamic-kNN one fills all k."""
     cfg = TrainConfig(k=4, scene_objects=6, selector="mixed", network="set", max_episode_steps=30)
-    env, again = make_env(cfg.rollout_env_kwargs), make_env(cfg.rollout_env_kwargs)
+    env, again = training_env(cfg), training_env(cfg)
     drawn, filled = [], {"dynamic-knn": set(), "dynamic-radius": set()}
     for episode in range(16):
         seed = 3 if episode == 0 else None  # seeded once, as a rollout worker does
@@ -256,7 +262,7 @@ def test_object_size_reaches_the_env_and_the_selection_aware_reducer():
     plain, sized = TrainConfig(k=2), TrainConfig(k=2, object_size=True)
     assert plain.env_kwargs["object_size"] is False and sized.env_kwargs["object_size"] is True
     for cfg in (sized, TrainConfig(k=2, scene_objects=4, object_size=True)):
-        env = make_env(cfg.rollout_env_kwargs)
+        env = training_env(cfg)
         obs, _ = env.reset(seed=1)
         assert obs.shape == (observation_dim(2, object_size=True),) == env.observation_space.shape
         env.close()
@@ -283,7 +289,7 @@ def test_train_runs_a_set_network_with_selection_aware_dynamic_k_and_records_it(
                       hidden=(32, 32), batch_size=32, buffer_size=5000, learning_starts=256, random_steps=256,
                       eval_episodes=2, eval_every_s=60, checkpoint_every_s=60, log_every_s=60, envs_per_collector=2,
                       env_steps_per_update=4.0, max_episode_steps=40, minutes=0.12, out_dir=str(tmp_path / "run"))
-    run = train(cfg, progress=False)
+    run = train(cfg, progress=False, env_factory=SelectedSlotsEnv)
     summary = json.loads((run / "summary.json").read_text())
     assert summary["updates"] > 0 and summary["learner"]["dtype"] in ("fp32", "bf16") and summary["learner"]["reason"]
     actor, meta = load_policy(run / "policy.safetensors")
@@ -293,30 +299,67 @@ def test_train_runs_a_set_network_with_selection_aware_dynamic_k_and_records_it(
 
 
 def test_the_selection_aware_env_comes_from_the_closed_registry_only():
-    """``slide-out-selected`` is a fixed registry name whose factory only the selection layer hands in; a config
-    cannot name it (nor a module), and the registry takes no other provided names."""
+    """``slide-out-selected`` is a fixed registry name whose factory the caller hands in (the selection layer's
+    ``SelectedSlotsEnv``; importing it registers nothing); a config cannot name it (nor a module), and a factory
+    does not make an unknown name known."""
     from safemanip.rl import envs
-    from safemanip.rl.config import ConfigError
-    from safemanip.selection.training_env import SelectedSlotsEnv
 
-    built = envs.env_builder(TrainConfig(k=2, scene_objects=3).rollout_env_kwargs)
+    built = envs.env_builder(TrainConfig(k=2, scene_objects=3).rollout_env_kwargs, SelectedSlotsEnv)
     assert built.factory is SelectedSlotsEnv and built.kwargs["k"] == 2 and built.kwargs["n_objects"] == 3
+    assert "env" not in built.kwargs
+    with pytest.raises(ValueError, match="import SelectedSlotsEnv"):  # this module has imported it: still refused
+        envs.env_builder(TrainConfig(k=2, scene_objects=3).rollout_env_kwargs)
     for name in (envs.SELECTED_ENV, "safemanip.selection.training_env:SelectedSlotsEnv"):
         with pytest.raises(ConfigError, match="registered envs"):
             TrainConfig.from_dict({"env": name})
-    with pytest.raises(ValueError, match="not a provided env"):
-        envs.register_env("my-env", SelectedSlotsEnv)
-    with pytest.raises(ValueError, match="unknown env"):
-        envs.make_env({"env": "selection:SelectedSlotsEnv"})
+    for factory in (None, SelectedSlotsEnv):
+        with pytest.raises(ValueError, match="unknown env"):
+            envs.make_env({"env": "selection:SelectedSlotsEnv"}, factory)
 
 
 def test_evaluation_workers_build_the_selection_aware_env_resolved_in_the_parent():
-    """Spawned evaluation workers register nothing: they get the resolved factory and give the in-process result."""
+    """Spawned evaluation workers get the factory resolved in the parent (by reference) and give the in-process
+    result."""
     from safemanip.rl.networks import Actor, actor_arrays
     from safemanip.rl.rollout import evaluate_actor
 
     cfg = TrainConfig(k=2, scene_objects=4, max_episode_steps=10)
     arrays = actor_arrays(Actor(observation_dim(2), 3, (16, 16)))
     seeds = [5, 6]
-    assert evaluate_actor(arrays, cfg.rollout_env_kwargs, seeds, workers=2) == \
-        evaluate_actor(arrays, cfg.rollout_env_kwargs, seeds, workers=1)
+    build = env_builder(cfg.rollout_env_kwargs, SelectedSlotsEnv)
+    assert evaluate_actor(arrays, build, seeds, workers=2) == evaluate_actor(arrays, build, seeds, workers=1)
+
+
+@pytest.mark.slow
+def test_train_from_python_takes_the_selection_aware_env_as_its_factory(tmp_path):
+    """``rl.train.train`` called from Python trains selection-aware when handed ``SelectedSlotsEnv``: the factory
+    reaches the spawned rollout worker and the evaluations, and the run is recorded as ``safemanip train`` records
+    it."""
+    import json
+
+    from safemanip.rl.checkpoint import load_policy
+    from safemanip.rl.train import train
+
+    cfg = TrainConfig(k=2, scene_objects=3, hidden=(32, 32), batch_size=32, buffer_size=5000, learning_starts=256,
+                      random_steps=256, eval_episodes=2, eval_every_s=60, checkpoint_every_s=60, log_every_s=60,
+                      envs_per_collector=2, env_steps_per_update=4.0, max_episode_steps=40, total_env_steps=768,
+                      out_dir=str(tmp_path / "run"))
+    run = train(cfg, progress=False, env_factory=SelectedSlotsEnv)
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["env_steps"] >= 768 and summary["updates"] > 0 and summary["final_eval"]["episodes"] == 2
+    meta = load_policy(run / "policy.safetensors")[1]
+    assert meta["train_config"]["scene_objects"] == 3 and meta["env_kwargs"]["n_objects"] == 2
+
+
+def test_train_without_the_selection_aware_factory_says_which_to_pass(tmp_path):
+    """A selection-aware config and no factory, or a factory the worker processes cannot receive: refused with
+    what to pass, before the run folder is made."""
+    from safemanip.rl.train import train
+
+    cfg = TrainConfig(k=2, scene_objects=3, out_dir=str(tmp_path / "run"))
+    with pytest.raises(ValueError, match=r"from safemanip\.selection\.training_env import SelectedSlotsEnv, then "
+                                         r"train\(cfg, env_factory=SelectedSlotsEnv\)"):
+        train(cfg, progress=False)
+    with pytest.raises(ConfigError, match="module-level class or function"):
+        train(cfg, progress=False, env_factory=lambda **kwargs: SelectedSlotsEnv(**kwargs))
+    assert not (tmp_path / "run").exists()

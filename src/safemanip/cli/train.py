@@ -31,7 +31,6 @@ EXTRA_HELP = {"address": "Default: RAY_ADDRESS, else a local Ray instance; never
 
 
 def _cmd_train(args) -> int:
-    import safemanip.selection.training_env  # noqa: F401  registers the selection-aware training env
     from safemanip.rl.config import TrainConfig, load_run_config
     from safemanip.rl.train import train
     from safemanip.util.files import check_output_dir
@@ -73,8 +72,14 @@ def _cmd_train(args) -> int:
         address, source = ray_address(cfg.address)
         if address:
             check_ray_address(address, source)
+    env_factory = None  # the registry's env the config names
+    if cfg.selection_aware:  # rl imports nothing from selection: the training loop takes its env as an argument
+        from safemanip.selection.training_env import SelectedSlotsEnv
+
+        env_factory = SelectedSlotsEnv
     command = "safemanip " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-    run_dir = train(cfg, resume=bool(args.resume), progress=not args.no_progress, command=command, run_dir=run_dir)
+    run_dir = train(cfg, resume=bool(args.resume), progress=not args.no_progress, command=command, run_dir=run_dir,
+                    env_factory=env_factory)
     summary = (run_dir / "summary.json").read_text()
     stopped_by = json.loads(summary).get("interrupted")
     if stopped_by:
@@ -89,7 +94,7 @@ def register(sub) -> None:
     from safemanip.rl.config import FIELD_BOUNDS, FIELD_CHOICES, Bounds, TrainConfig
 
     tr = sub.add_parser("train", help="train a reach-avoid (rarl) or vanilla DDPG policy")
-    tr.add_argument("--config", help="JSON file with TrainConfig fields (flags override it)")
+    tr.add_argument("--config", help="JSON file of training settings (flags override it)")
     tr.add_argument("--resume", metavar="RUN_DIR", help="continue an interrupted run from its newest checkpoint, "
                                                         "writing into RUN_DIR")
     bounds = {**FIELD_BOUNDS, "minutes": Bounds(0, FIELD_BOUNDS["minutes"].hi)}  # 0 on the command line: no limit

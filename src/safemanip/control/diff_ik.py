@@ -1,16 +1,16 @@
-"""Cartesian velocity control of a redundant arm: limits and damped-least-squares differential IK.
+"""Cartesian velocity control of a redundant arm: the Cartesian and joint limits and the jerk-limited ramp.
 
 Pure NumPy functions, called once per 20 Hz control step (never between physics substeps), so the
 arm costs the env a few microseconds of Python per step. Limits are the Franka Panda's published
 ones (Franka's control-parameter documentation): what a real Panda would refuse, the policy cannot
-command either.
+command either. The controllers that use them are in ``control/cartesian.py``; the damped-least-squares
+solve they share with the scene's inverse kinematics is ``scene/kinematics.py``.
 """
 
 from __future__ import annotations
 
 import math
 
-import mujoco
 import numpy as np
 
 MAX_EE_SPEED = 1.7
@@ -42,42 +42,11 @@ def limit_ee_velocity(requested: np.ndarray, previous: np.ndarray, dt: float,
     """The Cartesian velocity to command for the next control step.
 
     The speed is capped by norm at ``max_speed`` and the change from ``previous`` (the velocity commanded
-    for the step before) by norm at ``max_accel * dt``. The embodiment ramps linearly from the old to the
-    new set-point over the step, so the commanded acceleration never exceeds ``max_accel``.
+    for the step before) by norm at ``max_accel * dt``. The embodiment's controller ramps linearly from the old to
+    the new set-point over the step, so the commanded acceleration never exceeds ``max_accel``.
     """
     requested = limit_norm(requested, max_speed)
     return previous + limit_norm(requested - previous, max_accel * dt)
-
-
-def orientation_error(rotation: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Small-angle rotation vector (world frame) that turns ``rotation`` towards ``target`` (3x3 each).
-
-    Equals 0.5 * sum_i cross(rotation[:, i], target[:, i]), read off the skew part of target @ rotation.T
-    (one small matrix product instead of three cross products: this runs every control step).
-    """
-    (_, m01, m02), (m10, _, m12), (m20, m21, _) = (target @ rotation.T).tolist()
-    return np.array((0.5 * (m21 - m12), 0.5 * (m02 - m20), 0.5 * (m10 - m01)))
-
-
-def dls_joint_velocity(jacobian: np.ndarray, twist: np.ndarray, damping: float,
-                       nullspace_velocity: np.ndarray | None = None) -> np.ndarray:
-    """Damped least squares: qdot = J^T (J J^T + damping^2 I)^-1 twist, plus a null-space term.
-
-    ``jacobian`` is (6, n) (translation rows first), ``twist`` (6,). The null-space term (e.g. a pull
-    towards a comfortable posture) is projected so that it does not disturb the end-effector twist:
-    qdot = z + J^+ (twist - J z), with J^+ the damped pseudo-inverse. The 6x6 system is solved by
-    MuJoCo's Cholesky routines (a microsecond, where numpy's solve costs tens in call overhead).
-    """
-    jjt = jacobian @ jacobian.T
-    jjt.flat[::jjt.shape[0] + 1] += damping * damping
-    rhs = twist if nullspace_velocity is None else twist - jacobian @ nullspace_velocity
-    if mujoco.mju_cholFactor(jjt, 1e-12) < jjt.shape[0]:  # singular without damping: fall back to lstsq
-        solution = np.linalg.lstsq(jacobian @ jacobian.T, rhs, rcond=None)[0]
-    else:
-        solution = np.empty(jjt.shape[0])
-        mujoco.mju_cholSolve(solution, jjt, np.ascontiguousarray(rhs))
-    qdot = jacobian.T @ solution
-    return qdot if nullspace_velocity is None else qdot + nullspace_velocity
 
 
 def limit_joint_velocity(qdot: np.ndarray, q: np.ndarray, lower: np.ndarray, upper: np.ndarray,

@@ -5,7 +5,8 @@ One step = one 20 Hz control step = 25 physics steps of 2 ms. The action is the 
 displacement over the step as a vector in the unit ball (longer actions are scaled back onto it), times
 the Panda's 1.7 m/s: at most 8.5 cm per step. The commanded velocity then passes the Panda's Cartesian
 acceleration limit (13 m/s^2) and the lift band (the pads keep pressing on the box), and the embodiment
-(``panda`` by default, or the idealised ``hand``) tracks it within its joint limits.
+(``panda`` by default, or the idealised ``hand``) tracks it within its joint limits: its controller
+(``control/cartesian.py``) turns it into the servos' commands for the step.
 
 Safety is judged at every physics substep (``scene/builder.py``): a step's g is the minimum over its 25
 substeps and its end state, so no contact between two 20 Hz observations goes unseen. Success means
@@ -26,6 +27,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from safemanip.control.cartesian import make_controller
 from safemanip.control.diff_ik import MAX_EE_ACCEL, MAX_EE_SPEED, limit_ee_velocity, shape_action
 from safemanip.env import judge, sampling
 from safemanip.env import margins as M
@@ -108,6 +110,7 @@ class SlideOutEnv(gym.Env):
         # visual meshes only when frames will be rendered: they are ~95 % of a compile, physics is the same
         self.visual = (render_mode is not None) if visual is None else bool(visual)
         self.robot = make_embodiment(embodiment, visual=self.visual, gap=thresholds.collision)
+        self.controller = make_controller(self.robot)
         self.n_substeps = SUBSTEPS
         self.observation_space = observation_space(n_objects, self.object_size)
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
@@ -219,7 +222,7 @@ class SlideOutEnv(gym.Env):
         self._hold = [x + error_x + (float(command[0]) - correction_x) * CONTROL_DT,
                       y + error_y + (float(command[1]) - correction_y) * CONTROL_DT]
         m, d = self.model, self.data
-        phases = self.robot.command_velocity(m, d, self.binding, command, CONTROL_DT)
+        phases = self.controller.command_velocity(m, d, self.binding, command, CONTROL_DT)
         time_before = d.time
         self._run_substeps(m, d, phases)
         self._t += 1

@@ -12,8 +12,10 @@ One ``RolloutWorker`` class does the stepping; three pools run it:
   ``InlinePool`` the workers in the learner's own process, one chunk at a time: deterministic for a seed.
 
 Both produce the same transition dicts (``TRANSITION_KEYS``, float32 / bool arrays) from the same
-``RolloutWorker.step_all`` code, so the buffer cannot tell them apart. The pools resolve the env in this
-process (``rl.envs.env_builder``: the closed registry) and hand the workers the resolved ``EnvBuilder``.
+``RolloutWorker.step_all`` code, so the buffer cannot tell them apart. The pools are given the env resolved in
+this process (an ``EnvBuilder`` from ``rl.envs.env_builder``: the closed registry, or the factory passed to
+``rl.train.train``) and hand it to the workers: its factory travels by reference, so it must be a module-level
+class or function.
 Local worker processes die with this one (``util.procs.run_as_worker``).
 """
 
@@ -166,13 +168,12 @@ class LocalPool:
     """``cfg.n_collectors`` worker processes that die with this one; ``get`` returns (chunk, episodes) or
     raises ``queue.Empty``."""
 
-    def __init__(self, cfg, env_kwargs: dict, seed: int, env_steps: int, updates: int):
+    def __init__(self, cfg, build: EnvBuilder, seed: int, env_steps: int, updates: int):
         import multiprocessing as mp
         import os
 
         from safemanip.util.procs import run_as_worker
 
-        build = env_builder(env_kwargs)  # resolved here: a bad name fails in this process, before any spawn
         ctx = mp.get_context("spawn")
         self.data_q = ctx.Queue(maxsize=64)
         self.weights_qs = [ctx.Queue(maxsize=2) for _ in range(cfg.n_collectors)]
@@ -227,10 +228,9 @@ class RayPool:
     (``env_steps < random_steps`` when the chunk is requested) where local workers decide per step, so
     the switch to the actor can come up to one chunk per worker later."""
 
-    def __init__(self, cfg, env_kwargs: dict, seed: int, env_steps: int, updates: int):
+    def __init__(self, cfg, build: EnvBuilder, seed: int, env_steps: int, updates: int):
         import ray
 
-        build = env_builder(env_kwargs)  # resolved here, before Ray starts
         self.owns_ray = not ray.is_initialized()
         if self.owns_ray:
             from safemanip.util.procs import init_ray
@@ -307,8 +307,7 @@ class InlinePool:
     collects one chunk (from the workers in turn) whenever the data rate allows, so a run is deterministic for its
     seed: slower than a worker on another core, but what a short test of the real training loop needs."""
 
-    def __init__(self, cfg, env_kwargs: dict, seed: int, env_steps: int, updates: int):
-        build = env_builder(env_kwargs)
+    def __init__(self, cfg, build: EnvBuilder, seed: int, env_steps: int, updates: int):
         self.cfg = cfg
         self.workers = [RolloutWorker(build, seed, w, cfg.envs_per_collector, cfg.exploration_noise,
                                       cfg.noise_per_episode, cfg.noise_color) for w in range(cfg.n_collectors)]
@@ -344,6 +343,7 @@ POOLS = {"local": LocalPool, "ray": RayPool, "inline": InlinePool}
 """The rollout backends by name (``TrainConfig.backend``)."""
 
 
-def make_pool(cfg, env_kwargs: dict, seed: int, env_steps: int = 0, updates: int = 0):
-    """The rollout workers of ``cfg.backend``: local processes, Ray actors, or inline in this process."""
-    return POOLS[cfg.backend](cfg, env_kwargs, seed, env_steps, updates)
+def make_pool(cfg, build: EnvBuilder, seed: int, env_steps: int = 0, updates: int = 0):
+    """The rollout workers of ``cfg.backend``: local processes, Ray actors, or inline in this process, each
+    building its envs with ``build``."""
+    return POOLS[cfg.backend](cfg, build, seed, env_steps, updates)

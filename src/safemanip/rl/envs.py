@@ -5,13 +5,13 @@ keys of ``ENVS``; nothing read from a file is ever turned into an import path or
 class comes from a function in this file, and the keyword arguments a config may pass to a
 non-default env are listed with their types and ranges.
 
-Envs built by a layer above ``rl`` (``PROVIDED_ENVS``) have their name fixed here and their factory
-handed in by that layer with ``register_env``: ``slide-out-selected``, the selection-aware training
-env (``TrainConfig.scene_objects``/``selector``), is ``selection.training_env.SelectedSlotsEnv``, which
-registers itself when imported; ``safemanip train`` imports it by a static import (so ``rl`` imports
-nothing from ``selection``). A config never names these envs: ``TrainConfig.rollout_env_kwargs``
-chooses one from the typed fields. Worker processes and Ray actors are handed an ``EnvBuilder``
-resolved in the parent (the factory travels by reference), so they need no registration of their own.
+Envs built outside ``rl`` (``PROVIDED_ENVS``) have their name fixed here and their factory passed in by
+whoever calls the training loop (``rl.train.train(cfg, env_factory=...)``): ``slide-out-selected``,
+the selection-aware training env (``TrainConfig.scene_objects``/``selector``), is
+``selection.training_env.SelectedSlotsEnv``, which ``safemanip train`` passes (so ``rl`` imports nothing from
+``selection``, and nothing registers itself by being imported). A config never names these envs:
+``TrainConfig.rollout_env_kwargs`` chooses one from the typed fields. Worker processes and Ray actors are handed
+an ``EnvBuilder`` resolved in the parent (the factory travels by reference: a module-level class or function).
 """
 
 from __future__ import annotations
@@ -53,27 +53,14 @@ ENVS: dict[str, EnvEntry] = {
                                       {"max_episode_steps": (int, 1, 100_000)}),
 }
 
-LEGACY_FACTORIES = {"safemanip.env.slide_out:SlideOutEnv": "slide-out",
-                    "safemanip.rl.toy:ToyReachAvoidEnv": "toy-double-integrator"}
-"""The two ``env_factory`` strings older run folders and policy files carry, and the names they mean.
-Any other string is refused (it is never imported)."""
-
-
-PROVIDED_ENVS: dict[str, str] = {
-    SELECTED_ENV: "the slide-out env with N objects seen through an object selector that fills the policy's k "
-                  "slots (selection-aware training); provided by safemanip.selection.training_env",
+PROVIDED_ENVS: dict[str, tuple[str, str, str]] = {
+    SELECTED_ENV: ("the slide-out env with N objects seen through an object selector that fills the policy's k slots "
+                   "(selection-aware training: scene_objects, selector)", "safemanip.selection.training_env",
+                   "SelectedSlotsEnv"),
 }
-"""Envs whose factory a higher layer registers (``register_env``), by name -> description. Not nameable by a
+"""Envs whose factory another package provides, by name -> (description, module, factory): the caller of
+``rl.train.train`` passes that factory as ``env_factory``; this module never imports it. Not nameable by a
 config's ``env`` key."""
-
-_PROVIDED_FACTORIES: dict[str, Callable] = {}
-
-
-def register_env(name: str, factory: Callable) -> None:
-    """Hand in the factory of a ``PROVIDED_ENVS`` entry (called by the layer that builds it, at import)."""
-    if name not in PROVIDED_ENVS:
-        raise ValueError(f"{name!r} is not a provided env of the registry; provided envs: {sorted(PROVIDED_ENVS)}")
-    _PROVIDED_FACTORIES[name] = factory
 
 
 def env_choices() -> str:
@@ -114,21 +101,24 @@ class EnvBuilder:
         return self.factory(**self.kwargs)
 
 
-def env_builder(env_kwargs: dict) -> EnvBuilder:
+def env_builder(env_kwargs: dict, factory: Callable | None = None) -> EnvBuilder:
     """Resolve plain kwargs: ``env`` names a registry entry (default slide-out) or a provided env, the rest are
-    that env's constructor arguments."""
+    that env's constructor arguments. ``factory``, if given, builds the env from them instead of the registry's
+    class; a provided env needs it (``PROVIDED_ENVS`` says which)."""
     kwargs = dict(env_kwargs)
     name = kwargs.pop("env", DEFAULT_ENV)
-    if name in ENVS:
-        return EnvBuilder(ENVS[name].env_class(), kwargs)
+    if name not in ENVS and name not in PROVIDED_ENVS:
+        raise ValueError(f"unknown env {name!r}; registered envs: {env_choices()}")
+    if factory is not None:
+        return EnvBuilder(factory, kwargs)
     if name in PROVIDED_ENVS:
-        if name not in _PROVIDED_FACTORIES:
-            raise ValueError(f"env {name!r} is not registered in this process; it is {PROVIDED_ENVS[name]}: import "
-                             f"that module first (safemanip train does)")
-        return EnvBuilder(_PROVIDED_FACTORIES[name], kwargs)
-    raise ValueError(f"unknown env {name!r}; registered envs: {env_choices()}")
+        description, module, factory_name = PROVIDED_ENVS[name]
+        raise ValueError(f"env {name!r} ({description}) is built outside rl, so its factory must be passed in: "
+                         f"from {module} import {factory_name}, then train(cfg, env_factory={factory_name}) "
+                         f"(safemanip train does)")
+    return EnvBuilder(ENVS[name].env_class(), kwargs)
 
 
-def make_env(env_kwargs: dict):
+def make_env(env_kwargs: dict, factory: Callable | None = None):
     """Build one env from plain kwargs (see ``env_builder``)."""
-    return env_builder(env_kwargs)()
+    return env_builder(env_kwargs, factory)()

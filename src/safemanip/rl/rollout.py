@@ -9,6 +9,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from safemanip.rl.envs import EnvBuilder
+
 
 @dataclass
 class EpisodeRecord:
@@ -38,12 +40,10 @@ def _worker(args) -> list[dict]:
     return [asdict(run_episode(env, actor, s)) for s in seeds]
 
 
-def evaluate_actor(actor_arrays: list[np.ndarray] | dict[str, np.ndarray], env_kwargs: dict, seeds: list[int], workers: int = 1) -> list[dict]:
-    """Deterministic rollouts of the actor on the given seeds; records in seed order. The env is resolved here
-    (``rl.envs.env_builder``), so worker processes need no registry entries of their own."""
-    from safemanip.rl.envs import env_builder
-
-    build = env_builder(env_kwargs)
+def evaluate_actor(actor_arrays: list[np.ndarray] | dict[str, np.ndarray], build: EnvBuilder, seeds: list[int],
+                   workers: int = 1) -> list[dict]:
+    """Deterministic rollouts of the actor on the given seeds; records in seed order. ``build``: the env, resolved
+    by the caller (``rl.envs.env_builder``); worker processes get it as it is (its factory by reference)."""
     if workers <= 1:
         return _worker((actor_arrays, build, seeds))
     chunks = [seeds[i::workers] for i in range(workers)]

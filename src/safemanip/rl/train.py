@@ -7,12 +7,14 @@ import csv
 import io
 import json
 import os
+import pickle
 import queue
 import shutil
 import signal
 import time
 from collections import Counter, deque
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import torch
@@ -22,7 +24,7 @@ from safemanip.rl.checkpoint import (CHECKPOINT_NAMES, CheckpointError, find_che
                                      read_checkpoint_meta, recover_checkpoint, save_policy, write_checkpoint)
 from safemanip.rl.collector import make_pool
 from safemanip.rl.config import ConfigError, TrainConfig, load_run_config
-from safemanip.rl.envs import make_env
+from safemanip.rl.envs import EnvBuilder, env_builder
 from safemanip.rl.learner import Learner
 from safemanip.rl.networks import actor_arrays
 from safemanip.rl.rollout import evaluate_actor
@@ -65,8 +67,8 @@ def policy_meta(cfg: TrainConfig, obs_dim: int, act_dim: int, eval_result: dict 
             "train_command": command}
 
 
-def evaluate_now(actor, cfg: TrainConfig, episodes: int) -> dict:
-    records = evaluate_actor(actor_arrays(actor), cfg.rollout_env_kwargs, [EVAL_SEED_BASE + i for i in range(episodes)])
+def evaluate_now(actor, build: EnvBuilder, episodes: int) -> dict:
+    records = evaluate_actor(actor_arrays(actor), build, [EVAL_SEED_BASE + i for i in range(episodes)])
     events = Counter(r["event"] for r in records)
     result = {"episodes": episodes, "success": events["success"] / episodes,
               "mean_length": float(np.mean([r["length"] for r in records]))}
@@ -77,19 +79,34 @@ def evaluate_now(actor, cfg: TrainConfig, episodes: int) -> dict:
 
 
 def train(cfg: TrainConfig, resume: bool = False, progress: bool = True, command: str | None = None,
-          run_dir: str | Path | None = None) -> Path:
+          run_dir: str | Path | None = None, env_factory: Callable | None = None) -> Path:
     """Train (or, with ``resume``, continue) the run in ``run_dir`` (default ``cfg.out_dir``).
+
+    ``env_factory`` builds the env the rollout workers and the evaluations run, called with the keyword arguments
+    of ``cfg.rollout_env_kwargs`` (``env`` left out); None builds the registry's env the config names
+    (``rl/envs.py``). Selection-aware training (``cfg.scene_objects``) needs
+    ``selection.training_env.SelectedSlotsEnv`` here (``safemanip train`` passes it; without it the call is refused
+    with that message). Worker processes receive it pickled by reference: a module-level class or function.
 
     The folder is locked for the whole run (a second process on it is refused). SIGINT/SIGTERM stop the
     run at the next safe point: a checkpoint and ``policy.safetensors`` are written and the summary says
     ``"interrupted"``; ``--resume`` continues from there."""
+    # the env is resolved before anything is written: a missing factory, or one the worker processes cannot
+    # receive, is refused here (Ray's actors take whatever cloudpickle sends)
+    build = env_builder(cfg.rollout_env_kwargs, env_factory)
+    if cfg.backend == "local":
+        try:
+            pickle.dumps(build)
+        except (pickle.PicklingError, AttributeError, TypeError) as err:
+            raise ConfigError(f"env_factory {env_factory!r} cannot be sent to the rollout worker processes ({err}): "
+                              f"pass a module-level class or function, or use backend 'inline'") from None
     run_dir = Path(run_dir or cfg.out_dir)
     problems = check_output_dir(run_dir, "--resume" if resume else "--out")
     if problems:
         raise ConfigError(problems[0])
     warm = None if resume else warm_start(cfg)  # checked before the run folder exists; a resumed run's
     with OutputLock(run_dir, "--resume" if resume else "--out"):  # checkpoint already holds its start
-        return _train_locked(cfg, run_dir, resume, progress, command, warm)
+        return _train_locked(cfg, run_dir, resume, progress, command, build, warm)
 
 
 def truncate_logs(run_dir: Path, env_steps: int) -> None:
@@ -209,7 +226,7 @@ def no_checkpoint_message(run_dir: Path) -> str:
 
 
 def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool, command: str | None,
-                  warm: tuple[dict, dict] | None = None) -> Path:
+                  build: EnvBuilder, warm: tuple[dict, dict] | None = None) -> Path:
     checkpoint = recover_checkpoint(run_dir) if resume else None
     if resume and checkpoint is None:
         raise ConfigError(no_checkpoint_message(run_dir))
@@ -229,7 +246,7 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
                               f"\"config\" in {checkpoint / 'meta.json'}), or start a new run with --out")
     cfg.out_dir = str(run_dir)  # the folder actually written (a copied run folder is its own run)
     atomic_write_text(run_dir / "config.json", cfg.to_json())
-    trainer = Trainer(cfg, run_dir, command)
+    trainer = Trainer(cfg, run_dir, command, build)
     if resumed is not None:
         trainer.restore(resumed, checkpoint)
     else:
@@ -243,14 +260,16 @@ class Trainer:
     rollout workers' transitions, ``update`` takes learner steps at the configured data rate, and ``log``,
     ``evaluate`` and ``checkpoint`` run on their own clocks; ``finish`` saves the policy and the summary."""
 
-    def __init__(self, cfg: TrainConfig, run_dir: Path, command: str | None):
+    def __init__(self, cfg: TrainConfig, run_dir: Path, command: str | None, build: EnvBuilder):
         self.cfg, self.run_dir, self.command = cfg, run_dir, command
+        self.build = build
+        """The env of the rollouts and evaluations (``cfg.rollout_env_kwargs`` with its factory)."""
         # ---- seeding, all in one place (a resumed run reseeds the sampler in ``restore``)
         self.rng = np.random.default_rng(cfg.seed)
         torch.manual_seed(cfg.seed)
         torch.set_num_threads(cfg.torch_threads)
 
-        probe = make_env(cfg.rollout_env_kwargs)
+        probe = build()
         self.obs_dim, self.act_dim = probe.observation_space.shape[0], probe.action_space.shape[0]
         probe.close()
         self.learner = Learner(self.obs_dim, self.act_dim, cfg)
@@ -314,8 +333,7 @@ class Trainer:
     def run(self, progress: bool) -> None:
         cfg = self.cfg
         # rollout workers on the other core(s): local processes (dying with this one), Ray actors, or inline
-        self.pool = make_pool(cfg, cfg.rollout_env_kwargs, cfg.seed + 1000 * self.restarts, self.env_steps,
-                              self.updates)
+        self.pool = make_pool(cfg, self.build, cfg.seed + 1000 * self.restarts, self.env_steps, self.updates)
         self.broadcast()
         self.log_file = ScalarLog(self.run_dir)
         if progress:
@@ -426,7 +444,7 @@ class Trainer:
 
     def evaluate(self) -> None:
         """Held-out episodes with the current actor; the best so far is kept as ``best.safetensors``."""
-        result = evaluate_now(self.learner.actor, self.cfg, self.cfg.eval_episodes)
+        result = evaluate_now(self.learner.actor, self.build, self.cfg.eval_episodes)
         result.update(env_steps=self.env_steps, updates=self.updates, wall_s=round(self.elapsed(), 1))
         self.last_eval_result = result
         self.log_file.log({f"eval/{k}": v for k, v in result.items() if isinstance(v, float) and k != "wall_s"},

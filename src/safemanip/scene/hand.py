@@ -1,8 +1,9 @@
 """The idealised floating-hand ablation: the Panda hand on three world-aligned slide joints.
 
-It tracks the commanded end-effector velocity with one velocity servo per axis and has no joints to limit, so it
-measures what the 7-DoF arm costs a policy. The env applies the same Cartesian speed and acceleration limits to
-it as to the arm, and it grasps the same way (``scene/grasp.py``).
+It tracks the commanded end-effector velocity with one velocity servo per axis (``control.cartesian.HandController``
+ramps their set-points) and has no joints to limit, so it measures what the 7-DoF arm costs a policy. The env
+applies the same Cartesian speed and acceleration limits to it as to the arm, and it grasps the same way
+(``scene/grasp.py``).
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ class CartesianHand:
     """The idealised ablation: a Panda hand on three world-aligned slide joints (see the module docstring)."""
 
     name = "hand"
+    controller = "hand"
     root_body_name = "hand"
     ee_site_name = "ee"
     distance_geom_names = ("box_bottom", "hand_palm")
@@ -101,12 +103,6 @@ class CartesianHand:
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, binding: HandBinding) -> None:
         """Joint zero is the grasp pose; the pads start pressed in, just touching the lip."""
         data.qpos[binding.pad_qpos] = PAD_NOMINAL_QPOS
-
-    @staticmethod
-    def command_velocity(model, data, binding: HandBinding, velocity: np.ndarray, dt: float) -> tuple:
-        """Track end-effector ``velocity`` (m/s; the slide axes are world-aligned) over the coming step: one phase,
-        a linear ramp of the set-points (the ablation has no joints, so no joint jerk to limit)."""
-        return ((int(round(dt / model.opt.timestep)), (velocity - data.act[binding.act_adr]) / dt),)
 
     def holding_reach(self, geo: TaskGeometry):
         """The hand holds the box anywhere on the table: no reach map."""

@@ -14,15 +14,10 @@ correct what that model gets wrong for a torque-controlled Panda:
   (``scene/grasp.py``), and the colliding box geoms become convex meshes (MuJoCo's box-box collider misses
   some near pairs).
 
-Control: once per 20 Hz step, damped-least-squares differential IK turns the commanded end-effector
-velocity (and a correction that holds the hand's orientation, and a null-space pull to a comfortable
-posture) into joint velocities within the Panda's joint position and speed limits. Each joint has one
-velocity servo whose set-point is an integrator state: the controller sets its rate so that the set-point
-ramps linearly from the last command to the new one over the step. MuJoCo runs the 25 substeps with no
-Python in between. Torques are limited to the Panda's 87 / 12 Nm. Each step's change of joint velocity is
-scaled down so that no joint accelerates faster than ``ACCEL_MARGIN`` of Franka's limit, and the set-points'
-acceleration changes from one step's to the next over a substep (``jerk_limited_ramp``): within Franka's jerk
-limits at every 2 ms substep, as a real Panda's 1 kHz interface checks.
+Servos: each joint has one velocity servo whose set-point is an integrator state, its torque limited to the
+Panda's 87 / 12 Nm. The controller that ramps the set-points each control step (damped-least-squares
+differential IK within Franka's joint limits) is ``control/cartesian.py``'s ``PandaController``. The home
+configuration and the reach map are solved here by inverse kinematics of the bare arm (``scene/kinematics.py``).
 
 The grasp (``scene/grasp.py``): the fingertip pads press on the lip of the bottom box that sticks out to
 the right from under the top box, and drag it by friction; the box is a free body.
@@ -39,11 +34,10 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from safemanip.control.diff_ik import (dls_joint_velocity, jerk_limited_ramp, limit_joint_acceleration,
-                                       limit_joint_velocity, orientation_error)
 from safemanip.scene.config import GEOMETRY, TaskGeometry
 from safemanip.scene.grasp import (COLLIDE_ROBOT, PAD_CLEARANCE, PAD_NOMINAL_QPOS, PAD_PRESS, PAD_RADIUS, add_pad,
                                    boxes_to_meshes)
+from safemanip.scene.kinematics import dls_joint_velocity, orientation_error
 
 _ASSET_SUBDIR = ("envs", "assets", "kitchen_franka", "franka_assets")
 JOINTS = tuple(f"robot:panda0_joint{i}" for i in range(1, 8))
@@ -70,13 +64,6 @@ SERVO_GAIN = np.array([400.0, 400.0, 400.0, 400.0, 40.0, 40.0, 40.0])
 these make the torque-limited servos chatter at the 2 ms timestep."""
 LIMIT_MARGIN = 0.05
 """Joints are kept this far [rad] inside Franka's ranges."""
-SPEED_MARGIN = 0.85
-"""Joint velocities are commanded up to this share of Franka's limits: the servos track with small
-overshoots (inertial coupling between joints, contacts), and the achieved speed must stay within the limit."""
-ACCEL_MARGIN = 0.7
-"""Joint accelerations are commanded up to this share of Franka's limits: the servos lag the ramped set-points by
-a few ms and the joints pull on each other, which lets the achieved change over a 50 ms window overshoot the
-commanded one by up to ~25 % (measured: 0.99 of joint 2's limit with 0.8)."""
 FINGER_OPENING = 0.035
 """Each finger is opened this far from closed [m] (the Panda opens 0.04): the pads stand 8.5 cm apart across
 the lip, which lets them resist the box turning."""
@@ -192,17 +179,13 @@ class PandaBinding:
 
 
 class PandaArm:
-    """The Franka Panda with its Cartesian velocity controller (see the module docstring)."""
+    """The Franka Panda (see the module docstring); its controller is ``control.cartesian.PandaController``."""
 
     name = "panda"
+    controller = "panda"
     root_body_name = "panda/panda0_link0"
     ee_site_name = "panda/end_effector"
     distance_geom_names = ("box_bottom", "panda/hand_col")
-    ik_damping = 0.02
-    orientation_gain = 0.5
-    """Fraction of the orientation error removed per control step."""
-    posture_gain = 0.5
-    """Null-space pull towards the home posture [1/s] (keeps the elbow where it started)."""
 
     def __init__(self, visual: bool = True, gap: float = 0.0):
         self.visual = visual
@@ -263,45 +246,6 @@ class PandaArm:
         data.qvel[binding.dof_adr] = 0.0
         data.act[binding.act_adr] = 0.0
         binding.setpoint_rate = np.zeros(7)
-
-    def command_velocity(self, model, data, binding: PandaBinding, velocity: np.ndarray, dt: float) -> tuple:
-        """Track end-effector ``velocity`` (world frame, m/s) over the coming control step of ``dt`` s.
-
-        Returns the step's servo commands as phases, ((substeps, ctrl), ...), for the env to run."""
-        dofs, jac, jacp, jacr = binding.dofs, binding.jac6, binding.jacp, binding.jacr
-        mujoco.mj_jacSite(model, data, jacp, jacr, binding.ee_site)
-        jac[:3] = jacp[:, dofs]
-        jac[3:] = jacr[:, dofs]
-        # The joint velocities hold for the whole step while the arm moves (at 1.5 m/s the first joint turns
-        # ~0.13 rad), so solve with the Jacobian expected half-way through the step: J + (dt/2) dJ/dt.
-        mujoco.mj_jacDot(model, data, jacp, jacr, data.site_xpos[binding.ee_site], binding.site_body)
-        jac[:3] += (0.5 * dt) * jacp[:, dofs]
-        jac[3:] += (0.5 * dt) * jacr[:, dofs]
-        twist = binding.twist
-        twist[:3] = velocity
-        twist[3:] = orientation_error(data.site_xmat[binding.ee_site].reshape(3, 3), binding.target_rotation)
-        twist[3:] *= self.orientation_gain / dt
-        q = data.qpos[binding.qpos]
-        qdot = dls_joint_velocity(jac, twist, self.ik_damping, self.posture_gain * (binding.home_qpos - q))
-        unlimited = float(qdot @ qdot)
-        # brake at half Franka's joint accelerations: the servos lag a little behind their set-points
-        qdot = limit_joint_velocity(qdot, q, _LOWER, _UPPER, _SPEED_CAP, _BRAKING, dt)
-        previous = data.act[binding.act_adr]  # the set-points the last ramp ended at
-        qdot = limit_joint_acceleration(qdot, previous, _ACCEL_CAP * dt)
-        binding.speed_scale = math.sqrt(float(qdot @ qdot) / unlimited) if unlimited > 0.0 else 1.0
-        # ramp the servo set-points from where they are to qdot over the step, the joint accelerations blended
-        # from the last step's over the first substep (within Franka's jerk limits at 1 kHz)
-        substeps = int(round(dt / model.opt.timestep))
-        first, rest = jerk_limited_ramp(previous, qdot, binding.setpoint_rate, substeps, model.opt.timestep)
-        binding.setpoint_rate = rest
-        return (1, first), (substeps - 1, rest)
-
-
-_LOWER = FRANKA_JOINT_RANGES[:, 0] + LIMIT_MARGIN
-_UPPER = FRANKA_JOINT_RANGES[:, 1] - LIMIT_MARGIN
-_SPEED_CAP = SPEED_MARGIN * FRANKA_JOINT_SPEEDS
-_BRAKING = 0.5 * FRANKA_JOINT_ACCELS
-_ACCEL_CAP = ACCEL_MARGIN * FRANKA_JOINT_ACCELS
 
 
 def _as_slice(ids: np.ndarray):

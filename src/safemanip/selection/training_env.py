@@ -9,12 +9,11 @@ each episode draws its N, and slots a sparse scene cannot fill are padded as dep
 Constraint one-hots are the env's own (the ground-truth constraint selector of training scenes); a
 ``conservative`` policy sees ``no_contact`` everywhere, as in the reducer.
 
-Why it lives here: ``selection`` sits above ``env`` and beside ``rl``; ``rl`` imports nothing from
-``selection``, and this module takes only the registry's ``register_env`` from ``rl``. The env
-registry (``rl/envs.py``) fixes the name ``slide-out-selected`` (``SELECTED_ENV``), which
-``TrainConfig.rollout_env_kwargs`` chooses for selection-aware training; importing this module hands
-the registry its factory. ``safemanip train`` imports it; so must any other caller of
-``rl.train.train`` that trains selection-aware. No name read from a config is ever imported.
+Why it lives here: ``selection`` sits above ``env`` and beside ``rl``, and the two import nothing from each
+other. The env registry (``rl/envs.py``) fixes the name ``slide-out-selected`` (``SELECTED_ENV``), which
+``TrainConfig.rollout_env_kwargs`` chooses for selection-aware training; the caller of the training loop passes
+this class as its env factory, ``rl.train.train(cfg, env_factory=SelectedSlotsEnv)``, as ``safemanip train`` does
+(importing this module registers nothing). No name read from a config is ever imported.
 """
 
 from __future__ import annotations
@@ -23,7 +22,6 @@ import gymnasium as gym
 
 from safemanip.env.observation import observation_space
 from safemanip.env.slide_out import SlideOutEnv
-from safemanip.rl.envs import SELECTED_ENV, register_env
 from safemanip.selection.reducer import Reducer
 from safemanip.selection.selectors import DEFAULT_INTERVAL, DEFAULT_RADIUS, DynamicKNN, DynamicRadius
 from safemanip.selection.view import EnvViewBuilder
@@ -112,6 +110,3 @@ class SelectedSlotsEnv(gym.Env):
     def close(self):
         for env in self._envs.values():
             env.close()
-
-
-register_env(SELECTED_ENV, SelectedSlotsEnv)
