@@ -14,45 +14,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from safetensors.numpy import save_file
 
-from safemanip.cli import main
-from safemanip.rl.checkpoint import POLICY_FORMAT, SHIPPED_POLICIES
+from safemanip.rl.checkpoint import SHIPPED_POLICIES
+from conftest import SUBPROCESS_ENV, assert_refused, make_policy, policy_file, run_cli, run_safemanip
 
 POLICY = str(SHIPPED_POLICIES / "rarl-k2-conservative-s0.safetensors")
 EVAL = ["eval", "--policy", POLICY, "--episodes", "1", "--workers", "1", "--no-progress"]
 
 
-def run(capsys, argv):
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def assert_refused(capsys, argv, message):
-    code, out, err = run(capsys, argv)
-    assert code == 2, (code, out[-500:], err[-1000:])
-    assert message in err, err
-    assert "Traceback" not in err and "Traceback" not in out
-    assert "error:" in err
-    return err
-
-
 # ------------------------------------------------------------------------------------------ files to refuse
-def policy_file(path: Path, tensors=None, meta=None, fmt=POLICY_FORMAT, raw_meta=None) -> str:
-    rng = np.random.default_rng(0)
-    if tensors is None:
-        tensors = {"layer0.weight": rng.normal(size=(8, 26)).astype(np.float32),
-                   "layer0.bias": np.zeros(8, np.float32),
-                   "layer1.weight": rng.normal(size=(3, 8)).astype(np.float32),
-                   "layer1.bias": np.zeros(3, np.float32)}
-    if meta is None:
-        meta = {"algorithm": "rarl", "k": 1, "constraints": "conservative", "obs_dim": 26, "act_dim": 3,
-                "hidden": [8], "env_kwargs": {"n_objects": 1, "max_episode_steps": 300, "embodiment": "panda"}}
-    save_file(tensors, str(path), metadata={"format": fmt, "meta": raw_meta if raw_meta is not None else json.dumps(meta)})
-    return str(path)
-
-
 def _bad_policies(tmp: Path) -> dict[str, tuple[str, str]]:
     good = policy_file(tmp / "good.safetensors")
     data = Path(good).read_bytes()
@@ -92,10 +62,17 @@ def _bad_policies(tmp: Path) -> dict[str, tuple[str, str]]:
         "k": "two", "constraints": "conservative", "env_kwargs": {}}), "not a slot count")
     files["toy-policy"] = (policy_file(tmp / "toy.safetensors", meta={
         "k": 0, "constraints": "conservative", "env_kwargs": {"env": "toy-double-integrator"}}), "not the slide-out task")
-    from test_evaluation import make_policy
-
     files["policy-from-before-the-arm"] = (make_policy(tmp / "legacy.safetensors", 2, embodiment=None),
                                            "predates the Panda arm")
+    # the metadata format written before 2026-12-01 (retired in issue 43): refused with what to do, never converted
+    retired = {"algorithm": "rarl", "k": 1, "constraints": "conservative", "obs_dim": 26, "act_dim": 3, "hidden": [8],
+               "env_kwargs": {"n_objects": 1, "max_episode_steps": 300, "embodiment": "panda"}}
+    files["retired-env-factory"] = (policy_file(tmp / "factory.safetensors", meta={
+        **retired, "env_kwargs": {"factory": "safemanip.env.slide_out:SlideOutEnv", "n_objects": 1}}),
+        "format written before 2026-12-01 (env_kwargs.factory), retired in issue 43 and no longer read; re-train")
+    files["retired-train-config"] = (policy_file(tmp / "nobjects.safetensors", meta={
+        **retired, "train_config": {"n_objects": 1, "env_factory": None}}),
+        "format written before 2026-12-01 (train_config.n_objects, train_config.env_factory), retired in issue 43")
     files["missing-file"] = (str(tmp / "nowhere.safetensors"), "no policy file")
     files["folder-without-policy"] = (str(tmp), "holds no policy.safetensors")
     return files
@@ -104,7 +81,7 @@ def _bad_policies(tmp: Path) -> dict[str, tuple[str, str]]:
 BAD_POLICIES = ["truncated", "empty", "text", "huge-header", "header-not-json", "bad-offsets", "not-a-policy",
                 "missing-key", "meta-not-json", "meta-nan", "nan-weights", "shapes-do-not-chain",
                 "meta-shape-mismatch", "meta-lacks-k", "meta-k-not-int", "toy-policy", "policy-from-before-the-arm",
-                "missing-file", "folder-without-policy"]
+                "retired-env-factory", "retired-train-config", "missing-file", "folder-without-policy"]
 
 
 @pytest.mark.parametrize("case", BAD_POLICIES)
@@ -115,7 +92,8 @@ def test_eval_refuses_a_bad_policy_file(capsys, tmp_path, case):
     assert not out.exists()
 
 
-@pytest.mark.parametrize("case", ["truncated", "nan-weights", "missing-key", "policy-from-before-the-arm"])
+@pytest.mark.parametrize("case", ["truncated", "nan-weights", "missing-key", "policy-from-before-the-arm",
+                                  "retired-train-config"])
 def test_demo_refuses_a_bad_policy_file(capsys, tmp_path, case):
     path, message = _bad_policies(tmp_path)[case]
     assert_refused(capsys, ["demo", "--policy", path, "--no-video", "--out", tmp_path / "d"], message)
@@ -124,8 +102,6 @@ def test_demo_refuses_a_bad_policy_file(capsys, tmp_path, case):
 @pytest.mark.parametrize("command", ["eval", "demo"])
 def test_a_policy_from_another_embodiment_is_refused(capsys, tmp_path, command):
     """A Panda policy asked to drive the hand (and back) is refused before anything runs, saying why and what to do."""
-    from test_evaluation import make_policy
-
     for trained, wanted in (("panda", "hand"), ("hand", "panda")):
         path = make_policy(tmp_path / f"{trained}.safetensors", 2, embodiment=trained)
         out = tmp_path / f"out-{trained}"
@@ -151,7 +127,7 @@ def test_a_policy_from_another_embodiment_is_refused(capsys, tmp_path, command):
     (["--chunk-size", "-1"], "argument --chunk-size"),
     (["--selector", "bogus"], "argument --selector: invalid choice"),
     (["--constraint-selector", "bogus"], "argument --constraint-selector: invalid choice"),
-    (["--constraints", "vlm"], "the constraint selector of an evaluation is --constraint-selector"),
+    (["--constraints", "vlm"], "unrecognized arguments: --constraints vlm"),  # the retired spelling is gone
     (["--judge", "bogus"], "argument --judge"),
     (["--backend", "semantic"], "argument --backend"),
     (["--address", "127.0.0.1:1"], "--address only applies to --backend ray"),
@@ -184,7 +160,7 @@ def test_eval_refuses_an_out_held_by_a_live_process(capsys, tmp_path):
     out = tmp_path / "busy"
     holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from safemanip.util.files import OutputLock; "
                                f"OutputLock({str(out)!r}).acquire(); print('held', flush=True); time.sleep(60)"],
-                              stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+                              stdout=subprocess.PIPE, text=True, env=SUBPROCESS_ENV)
     try:
         assert holder.stdout.readline().strip() == "held"
         assert_refused(capsys, EVAL + ["--out", out], "in use by a running process")
@@ -192,7 +168,7 @@ def test_eval_refuses_an_out_held_by_a_live_process(capsys, tmp_path):
     finally:
         holder.kill()
         holder.wait()
-    code, _, err = run(capsys, EVAL + ["--out", out])  # a dead holder's lock is gone with it
+    code, _, err = run_cli(capsys, EVAL + ["--out", out])  # a dead holder's lock is gone with it
     assert code == 0, err
     assert (out / "summary.json").exists()
 
@@ -267,6 +243,11 @@ EVIL = {"env_factory": "subprocess:getoutput", "extra_env_kwargs": {"cmd": "touc
     ({"env": "slide-out-selected"}, "env must be one of the registered envs"),
     ({"env_factory": "safemanip.selection.training_env:SelectedSlotsEnv", "scene_objects": 4},
      "env_factory 'safemanip.selection.training_env:SelectedSlotsEnv' is not accepted"),
+    # the config format written before 2026-12-01 (retired in issue 43): refused with what to do, never converted
+    ({"env_factory": "safemanip.env.slide_out:SlideOutEnv"}, "retired in issue 43, and nothing in a config is imported"),
+    ({"env_factory": None, "k": 2}, "Name the env with 'env', one of ['slide-out', 'toy-double-integrator']"),
+    ({"n_objects": 2}, "the policy's object slots are 'k' and a larger training scene is 'scene_objects'"),
+    ({"n_objects": 2, "k": 2}, "in a config file of your own, drop it and use those two keys"),
     ({"env": "toy-double-integrator", "scene_objects": 4}, "scene_objects (selection-aware training) works on"),
     ({"device": "cuda:x"}, "device must be one of"),
     ({"set_embed": 10**6}, "set_embed must be in [1, 4,096]"),
@@ -315,16 +296,25 @@ def test_resume_refuses_conflicting_flags(capsys, tmp_path, extra, message):
     assert_refused(capsys, TRAIN + ["--resume", run] + extra, message)
 
 
+@pytest.mark.parametrize("retired", [{"n_objects": 2, "k": None}, {"env_factory": "safemanip.rl.toy:ToyReachAvoidEnv"}])
+def test_a_run_folder_of_the_retired_config_format_is_refused(capsys, tmp_path, retired):
+    """A run folder written before 2026-12-01 (``n_objects`` meaning k, ``env_factory``) is refused on --resume (and
+    by the reader --init-from uses too) with a message naming the file and what to do, not converted (issue 43)."""
+    from safemanip.rl.config import ConfigError, load_run_config
+
+    run = _run_folder(tmp_path, **retired)
+    config = {key: value for key, value in json.loads((run / "config.json").read_text()).items() if value is not None}
+    (run / "config.json").write_text(json.dumps(config))
+    err = assert_refused(capsys, TRAIN + ["--resume", run], f"{run / 'config.json'}: invalid training config")
+    assert "retired in issue 43" in err and "re-train" in err
+    with pytest.raises(ConfigError, match="retired in issue 43"):
+        load_run_config(run / "config.json")
+
+
 def test_resume_refuses_a_folder_that_is_not_a_run(capsys, tmp_path):
     assert_refused(capsys, TRAIN + ["--resume", tmp_path], "no config.json there")
     run = _run_folder(tmp_path)
     assert_refused(capsys, TRAIN + ["--resume", run], "no complete checkpoint")
-
-
-def _python(args, cwd):
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-    return subprocess.run([sys.executable, "-m", "safemanip.cli", *map(str, args)], capture_output=True, text=True,
-                          timeout=120, cwd=cwd, env=env)
 
 
 def test_a_config_or_run_folder_naming_a_module_runs_nothing(tmp_path):
@@ -334,10 +324,10 @@ def test_a_config_or_run_folder_naming_a_module_runs_nothing(tmp_path):
     evil = {**EVIL, "extra_env_kwargs": {"cmd": f"touch {marker}"}}
     cfg = tmp_path / "evil.json"
     cfg.write_text(json.dumps(evil))
-    done = _python(["train", "--config", cfg, "--out", tmp_path / "r1", "--no-progress"], tmp_path)
+    done = run_safemanip(["train", "--config", cfg, "--out", tmp_path / "r1", "--no-progress"], cwd=tmp_path)
     assert done.returncode == 2 and "is not accepted" in done.stderr and "Traceback" not in done.stderr
     run = _run_folder(tmp_path, **evil)
-    done = _python(["train", "--resume", run, "--no-progress"], tmp_path)
+    done = run_safemanip(["train", "--resume", run, "--no-progress"], cwd=tmp_path)
     assert done.returncode == 2 and "is not accepted" in done.stderr and "Traceback" not in done.stderr
     assert not marker.exists()
 

@@ -13,10 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from safemanip.cli import main
 from safemanip.rl.checkpoint import POLICY_FORMAT
-from test_bad_inputs import assert_refused, policy_file, run
-from test_evaluation import make_policy
+from conftest import assert_refused, fake_summary, make_policy, policy_file, run_cli
 
 DEEP = "[" * 100_000 + "]" * 100_000
 """JSON nested 100,000 levels deep: Python's parser would end in a RecursionError."""
@@ -236,7 +234,6 @@ def test_a_sweep_name_never_writes_outside_the_output_folder(capsys, tmp_path):
 
 def test_two_policies_of_the_same_k_are_both_shown(tmp_path):
     from safemanip.evaluation.sweep import cells_of, load_config, markdown_table
-    from test_sweep import _fake_summary
 
     rarl = make_policy(tmp_path / "rarl-k2-conservative.safetensors", 2)
     vanilla = make_policy(tmp_path / "vanilla-k2-conservative.safetensors", 2)
@@ -244,7 +241,7 @@ def test_two_policies_of_the_same_k_are_both_shown(tmp_path):
     cfg = load_config(str(path))
     cells = cells_of(cfg)
     assert len(cells) == 2
-    results = [{"cell": {**cell.__dict__}, "summary": _fake_summary(rate)} for cell, rate in zip(cells, (0.25, 0.75))]
+    results = [{"cell": {**cell.__dict__}, "summary": fake_summary(rate)} for cell, rate in zip(cells, (0.25, 0.75))]
     table = markdown_table(cfg, results)
     assert "25.0 [" in table and "75.0 [" in table  # one row each, neither hidden behind the other
     assert "rarl-k2-conservative" in table and "vanilla-k2-conservative" in table
@@ -254,7 +251,6 @@ def test_a_damaged_or_deep_cell_result_is_redone_not_fatal(capsys, tmp_path):
     from dataclasses import asdict
 
     from safemanip.evaluation.sweep import _done, cells_of, load_config, load_results
-    from test_sweep import _fake_summary
 
     cfg = load_config(str(_spec(tmp_path)))
     (cell,) = cells_of(cfg)
@@ -262,12 +258,12 @@ def test_a_damaged_or_deep_cell_result_is_redone_not_fatal(capsys, tmp_path):
     cells.mkdir(parents=True)
     path = cells / f"{cell.id}.json"
     for text in (DEEP, json.dumps({"cell": asdict(cell), "summary": {"success": 5}}), json.dumps([1, 2]),
-                 json.dumps({"cell": {**asdict(cell), "k": "2"}, "summary": _fake_summary(0.5)})):
+                 json.dumps({"cell": {**asdict(cell), "k": "2"}, "summary": fake_summary(0.5)})):
         path.write_text(text)
         assert not _done(path, cell)
         assert load_results(tmp_path / "o") == []
     assert "ignoring unreadable result" in capsys.readouterr().err
-    path.write_text(json.dumps({"cell": asdict(cell), "summary": _fake_summary(0.5)}))
+    path.write_text(json.dumps({"cell": asdict(cell), "summary": fake_summary(0.5)}))
     assert _done(path, cell) and len(load_results(tmp_path / "o")) == 1
 
 
@@ -439,7 +435,7 @@ def test_semantic_examples_never_echoes_a_files_content(monkeypatch, tmp_path):
 
 def test_semantic_examples_versions_and_file_names_still_work(capsys):
     for value in ("v1", "class_examples_v2.json"):
-        code, out, err = run(capsys, ["classify-constraints", "--semantic-examples", value, "glass jar"])
+        code, out, err = run_cli(capsys, ["classify-constraints", "--semantic-examples", value, "glass jar"])
         assert code == 0 and out.startswith("glass jar\t"), err
 
 

@@ -15,24 +15,20 @@ import shutil
 import signal
 import socket
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
 
 import pytest
 
-from safemanip.cli import main
 from safemanip.semantics import BackendError, ConstraintQuery, ObjectQuery, ResponseCache
 from safemanip.semantics.guard import GuardedBackend
 from safemanip.semantics.openai_backend import OpenAIBackend
 from safemanip.semantics.selectors import DynamicVLMSelector, VLMConstraintSelector, dynamic_knn
-from test_bad_inputs import assert_refused, run
-from test_evaluation import make_policy
-from test_semantics_openai import NAMES, FakeServer, completion, json_reply, pick_last_k, schema_of, view
+from conftest import (SAFEMANIP, SUBPROCESS_ENV, TINY_TRAIN, VLM_NAMES, FakeServer, assert_refused, cmdline, completion,
+                      descendants, json_reply, make_policy, pick_last_k, run_cli, schema_of, vlm_view)
 
 SECRET = "sk-test-Secret-0123456789abcdef"
-ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
 
 
 class DripServer:
@@ -94,7 +90,7 @@ def test_vlm_timeout_bounds_the_whole_request_against_a_dripping_server(mode):
         backend = OpenAIBackend(model="m", base_url=server.base_url, timeout_s=2.0, attempts=1)
         start = time.monotonic()
         with pytest.raises(BackendError, match="no complete answer within 2.0 s"):
-            backend.assign_constraints(ConstraintQuery(names=NAMES))
+            backend.assign_constraints(ConstraintQuery(names=VLM_NAMES))
         elapsed = time.monotonic() - start
     assert elapsed < 10, elapsed  # 2 s asked for; without a whole-request deadline: hours (100,000 bytes, 1 a second)
 
@@ -116,10 +112,10 @@ def test_the_episode_budget_bounds_a_query_not_only_the_next_one():
         guard.new_episode()
         start = time.monotonic()
         with pytest.raises(BackendError):
-            guard.assign_constraints(ConstraintQuery(names=NAMES))
+            guard.assign_constraints(ConstraintQuery(names=VLM_NAMES))
         elapsed = time.monotonic() - start
         with pytest.raises(BackendError, match="episode time budget"):  # the next query is not even sent
-            guard.assign_constraints(ConstraintQuery(names=NAMES))
+            guard.assign_constraints(ConstraintQuery(names=VLM_NAMES))
     assert elapsed < 10, elapsed  # 1.5 s of budget; the 30 s timeout x 3 attempts would take 90 s
 
 
@@ -128,10 +124,10 @@ def test_eval_against_a_dripping_server_finishes_on_the_fallback(capsys, tmp_pat
     out = tmp_path / "ev"
     with DripServer() as server:
         start = time.monotonic()
-        code, text, err = run(capsys, ["eval", "--policy", policy, "--n-objects", "3", "--selector", "dynamic-vlm",
-                                       "--vlm-backend", "openai", "--vlm-base-url", server.base_url, "--vlm-timeout",
-                                       "2", "--vlm-max-failures", "1", "--max-episode-steps", "40", "--episodes", "1",
-                                       "--workers", "1", "--no-progress", "--out", out])
+        code, text, err = run_cli(capsys, ["eval", "--policy", policy, "--n-objects", "3", "--selector", "dynamic-vlm",
+                                           "--vlm-backend", "openai", "--vlm-base-url", server.base_url, "--vlm-timeout",
+                                           "2", "--vlm-max-failures", "1", "--max-episode-steps", "40", "--episodes", "1",
+                                           "--workers", "1", "--no-progress", "--out", out])
         elapsed = time.monotonic() - start
     assert code == 0, err
     summary = json.loads((out / "summary.json").read_text())
@@ -149,12 +145,12 @@ def test_a_deep_or_huge_vlm_reply_falls_back_like_any_bad_answer(body, message, 
     with FakeServer(lambda req: (200, body, "application/json")) as server:
         backend = OpenAIBackend(model="m", base_url=server.base_url, timeout_s=5.0, attempts=1)
         with pytest.raises(BackendError, match=message):
-            backend.assign_constraints(ConstraintQuery(names=NAMES))
+            backend.assign_constraints(ConstraintQuery(names=VLM_NAMES))
         selector = DynamicVLMSelector(backend, query_interval=4)
-        v = view()
+        v = vlm_view()
         selector.reset(v, 2)
         assert selector.select(v, 2) == dynamic_knn(v, 2) and selector.stats.fallbacks == 1
-        assert VLMConstraintSelector(backend).assign(v) == ["no_contact"] * len(NAMES)
+        assert VLMConstraintSelector(backend).assign(v) == ["no_contact"] * len(VLM_NAMES)
 
 
 def test_a_cache_entry_nested_deep_is_a_miss(tmp_path):
@@ -164,14 +160,14 @@ def test_a_cache_entry_nested_deep_is_a_miss(tmp_path):
 
     with FakeServer(json_reply(answer_for)) as server:
         backend = OpenAIBackend(model="m", base_url=server.base_url, timeout_s=5.0, cache=ResponseCache(tmp_path))
-        backend.assign_constraints(ConstraintQuery(names=NAMES))
+        backend.assign_constraints(ConstraintQuery(names=VLM_NAMES))
         (entry,) = tmp_path.glob("??/*.json")
         entry.write_text("[" * 100_000 + "]" * 100_000)
         cache_only = OpenAIBackend(model="m", base_url=server.base_url, cache=ResponseCache(tmp_path, "cache_only"))
         with pytest.raises(BackendError, match="nests 100,000 levels deep"):
-            cache_only.assign_constraints(ConstraintQuery(names=NAMES))
+            cache_only.assign_constraints(ConstraintQuery(names=VLM_NAMES))
         sent = len(server.requests)
-        backend.assign_constraints(ConstraintQuery(names=NAMES))  # readwrite: a miss, asked again and stored
+        backend.assign_constraints(ConstraintQuery(names=VLM_NAMES))  # readwrite: a miss, asked again and stored
         assert len(server.requests) == sent + 1 and len(json.loads(entry.read_text())["answer"]["constraints"]) == 3
 
 
@@ -229,8 +225,8 @@ def test_classify_constraints_refuses_an_unwritable_vlm_cache_before_any_request
     assert len(err.strip().splitlines()) == 1 and str(cache) in err
     assert server.requests == []  # refused up front: no answer was asked for and then lost
     # replaying stored answers only reads the folder: --vlm-cache-only is not refused for it
-    code, _, err = run(capsys, ["classify-constraints", "--vlm-backend", "openai", "--vlm-cache", cache,
-                                "--vlm-cache-only", "red mug"])
+    code, _, err = run_cli(capsys, ["classify-constraints", "--vlm-backend", "openai", "--vlm-cache", cache,
+                                    "--vlm-cache-only", "red mug"])
     assert code == 2 and "cache miss" in err
 
 
@@ -268,9 +264,9 @@ def test_a_cache_write_that_fails_after_the_answer_warns_and_goes_on(tmp_path):
         return _constraints_for(req)
 
     with FakeServer(json_reply(answer)) as server:
-        done = subprocess.run([sys.executable, "-m", "safemanip.cli", "classify-constraints", "--vlm-backend", "openai",
+        done = subprocess.run([*SAFEMANIP, "classify-constraints", "--vlm-backend", "openai",
                                "--vlm-base-url", server.base_url, "--vlm-cache", str(cache), "red mug", "toy sheep"],
-                              capture_output=True, text=True, timeout=120, env=ENV)
+                              capture_output=True, text=True, timeout=120, env=SUBPROCESS_ENV)
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout == "red mug\tsoft_contact\ntoy sheep\tsoft_contact\n" and len(server.requests) == 1
     assert "Traceback" not in done.stderr
@@ -283,7 +279,7 @@ def test_a_cache_that_cannot_store_warns_once_and_every_query_is_still_answered(
     (tmp_path / "file").write_text("in the way")
     with FakeServer(json_reply(_constraints_for)) as server:
         backend = OpenAIBackend(model="m", base_url=server.base_url, timeout_s=5.0, cache=cache)
-        for names in (NAMES, NAMES[:2]):
+        for names in (VLM_NAMES, VLM_NAMES[:2]):
             got = backend.assign_constraints(ConstraintQuery(names=names))
             assert got.constraints == ["soft_contact"] * len(names)
     warnings = [r for r in caplog.records if "going on without caching" in r.getMessage()]
@@ -385,7 +381,7 @@ def test_a_key_echoed_in_another_case_never_reaches_the_message(monkeypatch):
     body = json.dumps({"error": {"message": f"bad key {SECRET.upper()} / {SECRET.lower()}"}}).encode()
     with FakeServer(lambda req: (400, body, "application/json")) as server:
         with pytest.raises(BackendError) as err:
-            OpenAIBackend(model="m", base_url=server.base_url, attempts=1).assign_constraints(ConstraintQuery(names=NAMES))
+            OpenAIBackend(model="m", base_url=server.base_url, attempts=1).assign_constraints(ConstraintQuery(names=VLM_NAMES))
     assert "HTTP 400" in str(err.value) and SECRET.lower() not in str(err.value).lower()
 
 
@@ -401,8 +397,8 @@ def test_the_key_is_never_stored_in_the_vlm_cache(monkeypatch, tmp_path):
     monkeypatch.setenv("OPENAI_API_KEY", SECRET)
     with FakeServer(json_reply(_echoing_answer)) as server:
         backend = OpenAIBackend(model="m", base_url=server.base_url, cache=ResponseCache(tmp_path))
-        got = backend.assign_constraints(ConstraintQuery(names=NAMES))
-        answer = backend.select_objects(ObjectQuery(view=view(), k=2, order=[0, 1, 2]))
+        got = backend.assign_constraints(ConstraintQuery(names=VLM_NAMES))
+        answer = backend.select_objects(ObjectQuery(view=vlm_view(), k=2, order=[0, 1, 2]))
     stored = "".join(p.read_text() for p in tmp_path.rglob("*.json"))
     assert stored and SECRET.lower() not in stored.lower() and "[redacted]" in stored
     assert SECRET.lower() not in (json.dumps(got.raw) + answer.explanation).lower()
@@ -411,8 +407,8 @@ def test_the_key_is_never_stored_in_the_vlm_cache(monkeypatch, tmp_path):
 def test_credentials_in_the_base_url_are_masked_in_every_message(capsys, monkeypatch):
     monkeypatch.setenv("OPENAI_API_KEY", SECRET)
     url = f"http://alice:hunter2@127.0.0.1:{_closed_port()}/v1"
-    code, out, err = run(capsys, ["classify-constraints", "--vlm-backend", "openai", "--vlm-base-url", url,
-                                  "--vlm-attempts", "1", "--vlm-timeout", "2", "mug"])
+    code, out, err = run_cli(capsys, ["classify-constraints", "--vlm-backend", "openai", "--vlm-base-url", url,
+                                      "--vlm-attempts", "1", "--vlm-timeout", "2", "mug"])
     assert code == 2 and "cannot reach http://[redacted]@127.0.0.1" in err
     assert "hunter2" not in out + err and "alice" not in out + err
     backend = OpenAIBackend(model="m", base_url=url)
@@ -423,23 +419,21 @@ def test_eval_results_never_hold_url_credentials(capsys, tmp_path):
     policy = make_policy(tmp_path / "k2.safetensors", 2)
     out = tmp_path / "ev"
     url = f"http://alice:hunter2@127.0.0.1:{_closed_port()}/v1"
-    code, text, err = run(capsys, ["eval", "--policy", policy, "--n-objects", "3", "--selector", "dynamic-vlm",
-                                   "--vlm-backend", "openai", "--vlm-base-url", url, "--vlm-timeout", "2",
-                                   "--vlm-max-failures", "1", "--max-episode-steps", "20", "--episodes", "1",
-                                   "--workers", "1", "--no-progress", "--json", "--out", out])
+    code, text, err = run_cli(capsys, ["eval", "--policy", policy, "--n-objects", "3", "--selector", "dynamic-vlm",
+                                       "--vlm-backend", "openai", "--vlm-base-url", url, "--vlm-timeout", "2",
+                                       "--vlm-max-failures", "1", "--max-episode-steps", "20", "--episodes", "1",
+                                       "--workers", "1", "--no-progress", "--json", "--out", out])
     assert code == 0, err
     written = (out / "summary.json").read_text()
     assert "hunter2" not in written + text + err and "[redacted]@127.0.0.1" in written
 
 
-def test_render_query_output_holds_no_key_and_no_url_credentials(capsys, monkeypatch, tmp_path):
+def test_render_query_output_holds_no_key_and_no_url_credentials(capsys, monkeypatch, tmp_path, gl):
     monkeypatch.setenv("OPENAI_API_KEY", SECRET)
     with FakeServer(json_reply(_echoing_answer)) as server:
         url = server.base_url.replace("http://", "http://alice:hunter2@")
-        code, out, err = run(capsys, ["render-query", "--seed", "4", "--steps", "4", "--vlm-backend", "openai",
-                                      "--vlm-base-url", url, "--vlm-model", "m", "--out", tmp_path / "q"])
-    if code == 2 and "renderer" in err:
-        pytest.skip(f"no offscreen OpenGL here: {err}")
+        code, out, err = run_cli(capsys, ["render-query", "--seed", "4", "--steps", "4", "--vlm-backend", "openai",
+                                          "--vlm-base-url", url, "--vlm-model", "m", "--out", tmp_path / "q"])
     assert code == 0, err
     files = "".join(p.read_text() for p in (tmp_path / "q").glob("*.*") if p.suffix in (".json", ".txt"))
     everything = (out + err + files).lower()
@@ -448,19 +442,6 @@ def test_render_query_output_holds_no_key_and_no_url_credentials(capsys, monkeyp
 
 
 # ------------------------------------------------------------------------------------------ 7. workers
-def _descendants(pid: int) -> set[int]:
-    from test_processes import descendants
-
-    return descendants(pid)
-
-
-def _cmdline(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-    except OSError:
-        return ""
-
-
 def _journal_seeds(folder: Path) -> set[int]:
     seeds = set()
     for journal in folder.glob("safemanip-eval-*/worker-*.jsonl"):
@@ -479,10 +460,10 @@ def test_a_killed_eval_worker_loses_no_finished_episode(tmp_path):
     scratch = tmp_path / "tmp"
     scratch.mkdir()
     out = tmp_path / "ev"
-    proc = subprocess.Popen([sys.executable, "-m", "safemanip.cli", "eval", "--policy", "rarl-k2-conservative-s0",
+    proc = subprocess.Popen([*SAFEMANIP, "eval", "--policy", "rarl-k2-conservative-s0",
                              "--episodes", "400", "--workers", "2", "--chunk-size", "200", "--no-progress", "--out", out],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
-                            env={**ENV, "TMPDIR": str(scratch)}, start_new_session=True)
+                            env={**SUBPROCESS_ENV, "TMPDIR": str(scratch)}, start_new_session=True)
     try:
         deadline, victim = time.time() + 240, None
         while time.time() < deadline and victim is None:
@@ -512,20 +493,19 @@ def test_a_killed_eval_worker_loses_no_finished_episode(tmp_path):
 @pytest.mark.slow
 def test_a_killed_rollout_worker_ends_train_with_one_line_and_the_resume_command(tmp_path):
     from safemanip.rl.checkpoint import find_checkpoint
-    from test_processes import TINY
 
     cfg = tmp_path / "tiny.json"
-    cfg.write_text(json.dumps({**TINY, "minutes": 2.0, "total_env_steps": 10**7}))
+    cfg.write_text(json.dumps({**TINY_TRAIN, "minutes": 2.0, "total_env_steps": 10**7}))
     run_dir = tmp_path / "run"
-    proc = subprocess.Popen([sys.executable, "-m", "safemanip.cli", "train", "--config", cfg, "--out", run_dir,
+    proc = subprocess.Popen([*SAFEMANIP, "train", "--config", cfg, "--out", run_dir,
                              "--no-progress"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
-                            env=ENV, start_new_session=True)
+                            env=SUBPROCESS_ENV, start_new_session=True)
     try:
         deadline, worker = time.time() + 120, None
         while time.time() < deadline and worker is None:
             assert proc.poll() is None, proc.communicate()
             if (run_dir / "scalars.csv").exists():  # the training loop runs
-                workers = [p for p in _descendants(proc.pid) if "spawn_main" in _cmdline(p)]
+                workers = [p for p in descendants(proc.pid) if "spawn_main" in cmdline(p)]
                 worker = workers[0] if workers else None
             time.sleep(0.2)
         assert worker is not None, "no rollout worker within 120 s"

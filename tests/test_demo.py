@@ -20,7 +20,7 @@ def test_policy_demo_writes_a_summary_with_margins(tmp_path):
     assert all(len(s) == 2 for s in summary["selected_over_time"][1:])  # k = 2 objects shown to the policy
 
 
-def test_scripted_demo_on_an_empty_table_succeeds_and_writes_a_video(tmp_path):
+def test_scripted_demo_on_an_empty_table_succeeds_and_writes_a_video(tmp_path, gl):
     pytest.importorskip("imageio")
     result = run_demo(out_dir=tmp_path, controller="scripted", n_objects=0, seed=1, slowmo=2.0)
     assert result.event == "success"

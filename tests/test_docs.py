@@ -59,3 +59,63 @@ def test_the_readme_is_short_and_links_resolve():
     assert len(readme.splitlines()) <= 250
     for target in re.findall(r"\]\(([^)#]+)\)", readme):
         assert (DOCS.parent / target).exists(), target
+
+
+def test_the_results_history_is_a_short_table_whose_commits_exist():
+    """docs/results-history.md lists each superseded result generation in one table row (date, commit, what changed,
+    headline number, why superseded); the full records are in git history at the commits it names (issue 43)."""
+    import subprocess
+
+    lines = (DOCS / "results-history.md").read_text().splitlines()
+    assert len(lines) <= 60
+    rows = [line for line in lines if re.match(r"\| \d{4}-\d{2}-\d{2} \|", line)]
+    assert len(rows) >= 10 and all(row.count("|") == 6 for row in rows), "five cells a row"
+    commits = {c for row in rows for c in re.findall(r"`([0-9a-f]{7})\^?`", row.split("|")[2])}
+    assert all(re.search(r"`[0-9a-f]{7}\^?`", row.split("|")[2]) for row in rows), "every row names its commit"
+    root = DOCS.parent
+    git = ["git", "-C", str(root)]
+    shallow = subprocess.run([*git, "rev-parse", "--is-shallow-repository"], capture_output=True, text=True)
+    if shallow.returncode != 0 or shallow.stdout.strip() != "false":
+        return  # no history here (an unpacked archive or a shallow clone): nothing to look the commits up in
+    missing = [c for c in sorted(commits)
+               if subprocess.run([*git, "cat-file", "-e", f"{c}^{{commit}}"], capture_output=True).returncode != 0]
+    assert not missing, f"docs/results-history.md names commits this repository does not have: {missing}"
+
+
+def _help_texts():
+    """(where, text) of what `safemanip --help` and `safemanip eval|sweep|train --help` print about each option; for
+    train, the options generated from the training config's fields."""
+    import argparse
+    from dataclasses import fields
+
+    from safemanip.cli import build_parser
+    from safemanip.rl.config import TrainConfig
+
+    parser = build_parser()
+    texts = [("safemanip", parser.description or "")]
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    texts += [(f"safemanip {c.dest}", c.help or "") for c in sub._choices_actions]
+    config_fields = {f.name for f in fields(TrainConfig)}
+    for name in ("eval", "sweep", "train"):
+        for action in sub.choices[name]._actions:
+            if name != "train" or action.dest in config_fields:
+                texts.append((f"safemanip {name} {'/'.join(action.option_strings) or action.dest}", action.help or ""))
+        texts.append((f"safemanip {name} (description, epilog)", f"{sub.choices[name].description or ''} "
+                                                                 f"{sub.choices[name].epilog or ''}"))
+    return texts
+
+
+def test_help_names_no_internal_class_and_the_time_budget_one_way():
+    """User-facing help speaks plain words: no class name of the package (EvalRequest, SemanticBackend, ...), no
+    ``code`` quoting. --minutes says how to switch its limit off in the one way the flag takes (issue 43)."""
+    import ast
+
+    classes = set()
+    for path in (DOCS.parent / "src" / "safemanip").rglob("*.py"):
+        classes |= {node.name for node in ast.walk(ast.parse(path.read_text())) if isinstance(node, ast.ClassDef)
+                    and re.search(r"[a-z0-9][A-Z]", node.name)}  # compound names; one word (Learner) is English
+    internal = re.compile(r"``|\b(?:" + "|".join(sorted(classes)) + r")\b")
+    offending = [f"{where}: {internal.search(text).group(0)}" for where, text in _help_texts() if internal.search(text)]
+    assert not offending, offending
+    minutes = next(text for where, text in _help_texts() if where.endswith("--minutes"))
+    assert "0 means no time limit" in minutes and "None" not in minutes and "none" not in minutes

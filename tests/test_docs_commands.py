@@ -5,13 +5,12 @@ from __future__ import annotations
 
 import re
 import shlex
-from pathlib import Path
 
 import pytest
 
 from safemanip.cli import build_parser
+from conftest import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
 PLACEHOLDERS = re.compile(r"\[|\]|\.\.\.| \| |NAME|FILE|HOST:PORT|\bS\b|\bN\b")
 """Lines that show a command's shape rather than a command (optional parts, alternatives, placeholders)."""
 
@@ -21,8 +20,6 @@ def shown_commands() -> list[tuple[str, str]]:
     comments dropped."""
     found = []
     for doc in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
-        if doc.name == "results-history.md":  # a record of past commands, kept as they were run
-            continue
         for block in re.findall(r"```bash\n(.*?)```", doc.read_text(), flags=re.DOTALL):
             for line in re.sub(r"\\\n\s*", " ", block).splitlines():
                 line = re.sub(r"\s+#.*$", "", line).strip()

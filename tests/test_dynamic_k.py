@@ -9,26 +9,17 @@ import torch
 
 from safemanip.env.observation import SceneState, observation_dim
 from safemanip.evaluation.episode import parse_selections
-from safemanip.selection.base import SceneView
 from safemanip.selection.reducer import Reducer
 from safemanip.evaluation.registry import SelectorOptions, make_object_selector
 from safemanip.selection.selectors import DynamicRadius
-
-BOX = np.array([0.0, 0.0, 0.035])
-
-
-def view(t: int, xy) -> SceneView:
-    pos = np.c_[np.asarray(xy, dtype=float), np.zeros(len(xy))]
-    path = np.tile(BOX, (t + 1, 1))
-    return SceneView(t=t, names=tuple(f"o{i}" for i in range(len(xy))), positions=pos, velocities=np.zeros_like(pos),
-                     ee_path=path, box_path=path, box_velocity=np.zeros(3))
+from conftest import scene_view
 
 
 def test_dynamic_radius_picks_the_objects_within_the_radius_nearest_first_at_most_k():
     sel = make_object_selector("dynamic-radius", SelectorOptions(interval=4, radius=0.3))
     assert isinstance(sel, DynamicRadius) and sel.variable_k
     xy = [[0.9, 0.0], [0.2, 0.0], [0.0, 0.29], [0.0, -0.1], [0.31, 0.0]]
-    v0 = view(0, xy)
+    v0 = scene_view(0, xy)
     sel.reset(v0, 3)
     assert sel.select(v0, 3) == [3, 1, 2]  # within 0.3 m: 3 (0.1), 1 (0.2), 2 (0.29); 4 (0.31) and 0 are out
     two = DynamicRadius(4, 0.3)
@@ -36,9 +27,9 @@ def test_dynamic_radius_picks_the_objects_within_the_radius_nearest_first_at_mos
     assert two.select(v0, 2) == [3, 1]  # never more than k
     # re-picks on the dynamic-knn schedule only: objects that moved in are seen at t = 4, not t = 1
     moved = [[0.05, 0.0], [0.9, 0.9], [0.9, -0.9], [0.9, 0.5], [0.9, -0.5]]
-    assert sel.select(view(1, moved), 3) == [3, 1, 2]
-    assert sel.select(view(4, moved), 3) == [0]
-    assert sel.select(view(8, [[0.9, 0.9]]), 3) == []  # nothing near: no objects at all
+    assert sel.select(scene_view(1, moved), 3) == [3, 1, 2]
+    assert sel.select(scene_view(4, moved), 3) == [0]
+    assert sel.select(scene_view(8, [[0.9, 0.9]]), 3) == []  # nothing near: no objects at all
 
 
 def test_reducer_empty_slots_are_zero_and_the_real_slots_match_the_unpadded_observation():

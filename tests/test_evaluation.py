@@ -12,46 +12,13 @@ from safemanip.env.slide_out import SlideOutEnv
 from safemanip.evaluation.episode import format_selections, parse_selections, run_episode
 from safemanip.evaluation.harness import EvalConfigError, EvalRequest, evaluate, prepare, read_records
 from safemanip.evaluation.parallel import chunk_seeds, run_episodes
-from safemanip.rl.checkpoint import save_policy
 from safemanip.rl.numpy_actor import NumpyActor
 from safemanip.scene.catalog import load_catalog
 from safemanip.scene.placement import LAYOUTS
 from safemanip.selection.reducer import Reducer
 from safemanip.selection.selectors import ConservativeConstraints, DynamicKNN, GroundTruthConstraints
 from safemanip.selection.view import EnvViewBuilder
-
-
-def make_policy(path, k, constraints="conservative", hidden=(16, 16), seed=0, goal_seeker=False, embodiment="panda",
-                object_size=None, obs_dim=None):
-    """A tiny random MLP policy file, or (goal_seeker) a one-layer one that drives the box at the goal:
-    the latter hits clutter within a few steps, so collisions of both kinds show up in short runs.
-    ``object_size`` (True/False) is recorded in the metadata when given; ``obs_dim`` overrides the input size."""
-    rng = np.random.default_rng(seed)
-    d = obs_dim or observation_dim(k, bool(object_size))
-    if goal_seeker:
-        from safemanip.scene.config import GEOMETRY
-
-        w = np.zeros((3, d), np.float32)
-        # obs[6:8] = bottom box x, y; a weak pull across, so that the pull out stays straight (heading 10 deg aside
-        # drags the top box along: with a gain of 1 across, every pull did) and the box heads for the goal once out
-        w[0, 6], w[1, 7] = -4.0, -0.5
-        b = np.array([4.0 * GEOMETRY.goal_xy[0], 0.5 * GEOMETRY.goal_xy[1], 0.0], np.float32)
-        arrays, hidden = [w, b], ()
-    else:
-        sizes = [d, *hidden, 3]
-        arrays = []
-        for i in range(len(sizes) - 1):
-            arrays += [rng.normal(0, 1 / np.sqrt(sizes[i]), (sizes[i + 1], sizes[i])).astype(np.float32),
-                       np.zeros(sizes[i + 1], np.float32)]
-    meta = {"algorithm": "rarl", "k": k, "constraints": constraints, "obs_dim": d, "act_dim": 3,
-            "hidden": list(hidden), "env_kwargs": {"n_objects": k, "constraints": constraints,
-                                                   "near_path_fraction": 0.5, "max_episode_steps": 300,
-                                                   "embodiment": embodiment}}
-    if embodiment is None:  # a policy from before the Panda arm: its metadata names no embodiment
-        del meta["env_kwargs"]["embodiment"]
-    if object_size is not None:
-        meta["env_kwargs"]["object_size"] = object_size
-    return str(save_policy(path, arrays, meta))
+from conftest import make_policy
 
 
 class Fixed:
@@ -139,7 +106,7 @@ class RecordingBackend:
         return ObjectAnswer(ids=list(query.order[:query.k]))
 
 
-def test_vlm_selector_gets_annotated_frames_only_when_it_queries():
+def test_vlm_selector_gets_annotated_frames_only_when_it_queries(gl):
     from safemanip.semantics.selectors import DynamicVLMSelector
 
     env = SlideOutEnv(n_objects=3, constraints="conservative", max_episode_steps=9)

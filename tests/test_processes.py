@@ -22,34 +22,7 @@ import pytest
 import torch
 
 from safemanip.rl.checkpoint import find_checkpoint, read_checkpoint, recover_checkpoint, write_checkpoint
-
-TINY = {"k": 1, "hidden": [32, 32], "batch_size": 32, "buffer_size": 5000, "learning_starts": 300,
-        "random_steps": 300, "eval_episodes": 2, "eval_every_s": 3, "checkpoint_every_s": 2, "log_every_s": 1,
-        "envs_per_collector": 2, "env_steps_per_update": 2.0}
-ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-
-
-def _children() -> dict[int, list[int]]:
-    kids: dict[int, list[int]] = {}
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                stat = Path(f"/proc/{entry}/stat").read_text()
-            except OSError:
-                continue
-            ppid = int(stat.rsplit(")", 1)[1].split()[1])
-            kids.setdefault(ppid, []).append(int(entry))
-    return kids
-
-
-def descendants(pid: int) -> set[int]:
-    kids, out, todo = _children(), set(), [pid]
-    while todo:
-        for c in kids.get(todo.pop(), []):
-            if c not in out:
-                out.add(c)
-                todo.append(c)
-    return out
+from conftest import SAFEMANIP, SUBPROCESS_ENV, TINY_TRAIN, cmdline, descendants
 
 
 def alive(pid: int) -> bool:
@@ -62,8 +35,8 @@ def alive(pid: int) -> bool:
 
 def start(args, tmp_path: Path, log_name: str, env: dict | None = None) -> subprocess.Popen:
     log = open(tmp_path / log_name, "w")
-    return subprocess.Popen([sys.executable, "-m", "safemanip.cli", *map(str, args)], stdout=log,
-                            stderr=subprocess.STDOUT, env=env or ENV, cwd=tmp_path, start_new_session=True)
+    return subprocess.Popen([*SAFEMANIP, *map(str, args)], stdout=log, stderr=subprocess.STDOUT,
+                            env=env or SUBPROCESS_ENV, cwd=tmp_path, start_new_session=True)
 
 
 HANG_S = 300.0
@@ -98,7 +71,7 @@ def scratch_env(tmp_path: Path) -> tuple[dict, Path]:
     episode, ``evaluation/parallel.py``) show there, which is how the tests below see episodes finish."""
     scratch = tmp_path / "scratch"
     scratch.mkdir(exist_ok=True)
-    return {**ENV, "TMPDIR": str(scratch)}, scratch
+    return {**SUBPROCESS_ENV, "TMPDIR": str(scratch)}, scratch
 
 
 def journal_lines(scratch: Path) -> list[int]:
@@ -138,7 +111,7 @@ def kill_and_check_orphans(proc: subprocess.Popen, workers: set[int]) -> None:
 
 def _tiny_config(tmp_path: Path, **extra) -> Path:
     cfg = tmp_path / "tiny.json"
-    cfg.write_text(json.dumps({**TINY, "minutes": 1.0, "total_env_steps": 10**7, **extra}))
+    cfg.write_text(json.dumps({**TINY_TRAIN, "minutes": 1.0, "total_env_steps": 10**7, **extra}))
     return cfg
 
 
@@ -167,7 +140,7 @@ def test_reaper_kills_what_a_killed_process_left_behind(tmp_path):
               "start_reaper()\n"
               "subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(600)'])\n"
               "time.sleep(600)\n")
-    proc = subprocess.Popen([sys.executable, "-c", script], env=ENV, start_new_session=True)
+    proc = subprocess.Popen([sys.executable, "-c", script], env=SUBPROCESS_ENV, start_new_session=True)
     workers = wait_for_workers(proc, 2, timeout=30.0)  # the reaper and the sleeper
     kill_and_check_orphans(proc, workers)
 
@@ -251,7 +224,7 @@ def test_sigint_while_the_workers_start_leaves_no_traceback_and_no_process(tmp_p
     def a_worker_starts() -> bool:
         found = descendants(proc.pid)
         seen.update(found)
-        return any("spawn_main" in _cmdline(p) for p in found)
+        return any("spawn_main" in cmdline(p) for p in found)
 
     wait_until(a_worker_starts, "a worker process started", proc)
     os.kill(proc.pid, signal.SIGINT)
@@ -262,13 +235,6 @@ def test_sigint_while_the_workers_start_leaves_no_traceback_and_no_process(tmp_p
     wait_gone(seen)  # then a worker's traceback would be in the log too
     text = (tmp_path / "run.log").read_text()
     assert "Traceback" not in text and "Error" not in text and "interrupted" in text, text[-3000:]
-
-
-def _cmdline(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-    except OSError:
-        return ""
 
 
 def test_signals_deferred_holds_a_stop_until_the_block_ends_and_a_second_one_stops_at_once():
@@ -308,7 +274,8 @@ def test_a_worker_whose_start_up_data_is_cut_off_exits_without_a_traceback():
     # what a spawned worker itself does with its start-up data (multiprocessing's own format, made by this test)
     load = "import pickle, sys; p = pickle.load(sys.stdin.buffer); print(type(p).__name__, len(p._args[0]))"
     for cut, code, stdout in ((len(data), 0, "QuietSpawnProcess 50000\n"), (len(data) // 2, 1, "")):
-        done = subprocess.run([sys.executable, "-c", load], input=data[:cut], capture_output=True, env=ENV, timeout=120)
+        done = subprocess.run([sys.executable, "-c", load], input=data[:cut], capture_output=True, env=SUBPROCESS_ENV,
+                              timeout=120)
         assert (done.returncode, done.stdout.decode(), done.stderr.decode()) == (code, stdout, ""), done.stderr[-2000:]
 
 
@@ -331,8 +298,8 @@ def test_a_second_sweep_on_the_same_folder_is_refused_in_one_line(tmp_path):
     try:
         lock = out / ".lock"
         wait_until(lambda: lock.exists() and lock.read_text() == str(first.pid), "the first sweep holds the folder", first)
-        second = subprocess.run([sys.executable, "-m", "safemanip.cli", "sweep", str(spec), "--out", str(out),
-                                 "--workers", "2", "--no-progress"], capture_output=True, text=True, env=ENV,
+        second = subprocess.run([*SAFEMANIP, "sweep", str(spec), "--out", str(out),
+                                 "--workers", "2", "--no-progress"], capture_output=True, text=True, env=SUBPROCESS_ENV,
                                 cwd=tmp_path, timeout=HANG_S)
         assert second.returncode == 2, second.stdout[-1000:] + second.stderr[-1000:]
         assert second.stderr.splitlines() == [f"safemanip sweep: error: --out {out} is in use by a running process (pid "
@@ -495,8 +462,8 @@ def test_resume_of_a_copied_run_after_a_crash_between_renames(tmp_path):
     config = json.loads((copy / "config.json").read_text())  # a budget may change on resume: a short one
     (copy / "config.json").write_text(json.dumps({**config, "total_env_steps": meta["env_steps"] + 2000}))
     before = sorted(p.name for p in run.iterdir())
-    done = subprocess.run([sys.executable, "-m", "safemanip.cli", "train", "--resume", str(copy), "--no-progress"],
-                          capture_output=True, text=True, timeout=180, env=ENV)
+    done = subprocess.run([*SAFEMANIP, "train", "--resume", str(copy), "--no-progress"],
+                          capture_output=True, text=True, timeout=180, env=SUBPROCESS_ENV)
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
     assert f"from {meta['env_steps']} env steps / {meta['updates']} updates" in done.stdout
     assert sorted(p.name for p in run.iterdir()) == before and not (run / "summary.json").exists()

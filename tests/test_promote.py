@@ -8,27 +8,24 @@ a hang (the script used to spend a 200-episode evaluation before failing on a ru
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-from test_evaluation import make_policy
+from conftest import ROOT, SUBPROCESS_ENV, make_policy
 
-ROOT = Path(__file__).resolve().parents[1]
 PROMOTE = ROOT / "results" / "training" / "promote.py"
 POLICIES = ROOT / "src" / "safemanip" / "policies"
 RECORDS = ROOT / "results" / "training"
 RUN = "promote-test-run"  # not a shipped policy's name: nothing of it may exist in the repository
-ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
 FINISHED = {"env_steps": 400_000, "interrupted": None}
 
 
 def promote(*args) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, str(PROMOTE), *map(str, args)], capture_output=True, text=True,
-                          timeout=300, env=ENV, cwd=ROOT)
+                          timeout=300, env=SUBPROCESS_ENV, cwd=ROOT)
 
 
 def assert_refused(done: subprocess.CompletedProcess, message: str) -> None:

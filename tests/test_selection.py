@@ -5,25 +5,12 @@ import pytest
 
 from safemanip.env.observation import ROBOT_DIM, SLOT_DIM, SceneState, observation_dim
 from safemanip.rl.numpy_actor import NumpyActor
-from safemanip.selection.base import SceneView
 from safemanip.selection.reducer import DUMMY_POSITIONS, DUMMY_RADIUS, Reducer, order_by_distance
 from safemanip.evaluation.registry import (CONSTRAINT_SELECTORS, OBJECT_SELECTORS, SelectorOptions,
                                            make_constraint_selector, make_object_selector)
 from safemanip.selection.selectors import (ConservativeConstraints, DynamicKNN, FullSelector, GroundTruthConstraints,
                                            PrivilegedCriticality, PrivilegedSelector, StaticKNN, criticality_first)
-
-BOX = np.array([0.0, 0.0, 0.035])
-
-
-def view(t, positions, classes=None, box=BOX):
-    positions = np.asarray(positions, dtype=float)
-    if positions.shape[1] == 2:
-        positions = np.c_[positions, np.zeros(len(positions))]
-    n = len(positions)
-    path = np.tile(box, (t + 1, 1))
-    return SceneView(t=t, names=tuple(f"obj{i}" for i in range(n)), positions=positions,
-                     velocities=np.zeros((n, 3)), ee_path=path, box_path=path, box_velocity=np.zeros(3),
-                     privileged_classes=tuple(classes) if classes else None)
+from conftest import BOX, scene_view
 
 
 # object 0 is far, 1 near, 2 middle, 3 nearest
@@ -32,35 +19,35 @@ POS = [[0.9, 0.0], [0.2, 0.0], [0.0, 0.5], [0.0, -0.1]]
 
 def test_nearest_is_horizontal_distance_to_the_box_centre():
     sel = DynamicKNN()
-    v = view(0, [[0.3, 0.0, 0.0], [0.0, 0.25, 5.0]])  # object 1 is far above but horizontally nearer
+    v = scene_view(0, [[0.3, 0.0, 0.0], [0.0, 0.25, 5.0]])  # object 1 is far above but horizontally nearer
     sel.reset(v, 1)
     assert sel.select(v, 1) == [1]
-    moved = view(4, [[0.3, 0.0, 0.0], [0.0, 0.25, 5.0]], box=np.array([0.3, 0.1, 0.035]))  # the box moved
+    moved = scene_view(4, [[0.3, 0.0, 0.0], [0.0, 0.25, 5.0]], box=np.array([0.3, 0.1, 0.035]))  # the box moved
     assert sel.select(moved, 1) == [0]
 
 
 def test_static_knn_picks_at_t0_and_never_repicks():
     sel = StaticKNN()
-    sel.reset(view(0, POS), 2)
-    assert sel.select(view(0, POS), 2) == [3, 1]
+    sel.reset(scene_view(0, POS), 2)
+    assert sel.select(scene_view(0, POS), 2) == [3, 1]
     swapped = [[0.0, -0.1], [0.9, 0.0], [0.0, 0.05], [0.0, 0.9]]  # now 0 and 2 are nearest
     for t in range(1, 40):
-        assert sel.select(view(t, swapped), 2) == [3, 1]
+        assert sel.select(scene_view(t, swapped), 2) == [3, 1]
     assert sel.picks == 1
 
 
 def test_dynamic_knn_repicks_every_interval_steps():
     sel = DynamicKNN()  # default interval: 4 (paper)
-    sel.reset(view(0, POS), 2)
-    assert sel.select(view(0, POS), 2) == [3, 1]
+    sel.reset(scene_view(0, POS), 2)
+    assert sel.select(scene_view(0, POS), 2) == [3, 1]
     swapped = [[0.0, -0.1], [0.9, 0.0], [0.0, 0.05], [0.9, 0.9]]
     for t in (1, 2, 3):  # keeps the last pick between queries even though the scene changed
-        assert sel.select(view(t, swapped), 2) == [3, 1]
-    assert sel.select(view(4, swapped), 2) == [2, 0]
+        assert sel.select(scene_view(t, swapped), 2) == [3, 1]
+    assert sel.select(scene_view(4, swapped), 2) == [2, 0]
     assert sel.picks == 2
     sel2 = DynamicKNN(interval=2)
-    sel2.reset(view(0, POS), 1)
-    picks = [tuple(sel2.select(view(t, POS if t < 2 else swapped), 1)) for t in range(5)]
+    sel2.reset(scene_view(0, POS), 1)
+    picks = [tuple(sel2.select(scene_view(t, POS if t < 2 else swapped), 1)) for t in range(5)]
     assert picks == [(3,), (3,), (2,), (2,), (2,)] and sel2.picks == 3
     with pytest.raises(ValueError, match="interval"):
         DynamicKNN(interval=0)
@@ -68,23 +55,23 @@ def test_dynamic_knn_repicks_every_interval_steps():
 
 def test_dynamic_knn_starts_over_on_a_new_episode_without_reset():
     sel = DynamicKNN()
-    sel.reset(view(0, POS), 1)
-    sel.select(view(0, POS), 1)
-    sel.select(view(9, POS), 1)
+    sel.reset(scene_view(0, POS), 1)
+    sel.select(scene_view(0, POS), 1)
+    sel.select(scene_view(9, POS), 1)
     other = [[0.0, -0.05], [0.9, 0.0], [0.0, 0.5], [0.9, 0.9]]
-    assert sel.select(view(0, other), 1) == [0]  # t went backwards: a new episode, pick now
+    assert sel.select(scene_view(0, other), 1) == [0]  # t went backwards: a new episode, pick now
 
 
 def test_privileged_prefers_fragile_then_tops_up_with_nearest_others():
     classes = ["fragile", "durable", "fragile", "soft"]  # the nearest two (3, 1) are not fragile
     sel = PrivilegedSelector()
-    sel.reset(view(0, POS, classes), 2)
-    assert sel.select(view(0, POS, classes), 2) == [2, 0]
+    sel.reset(scene_view(0, POS, classes), 2)
+    assert sel.select(scene_view(0, POS, classes), 2) == [2, 0]
     sel3 = PrivilegedSelector()
-    sel3.reset(view(0, POS, classes), 3)
-    assert sel3.select(view(0, POS, classes), 3) == [2, 0, 3]  # two fragile, then the nearest other
+    sel3.reset(scene_view(0, POS, classes), 3)
+    assert sel3.select(scene_view(0, POS, classes), 3) == [2, 0, 3]  # two fragile, then the nearest other
     with pytest.raises(ValueError, match="privileged_classes"):
-        PrivilegedSelector().select(view(0, POS), 2)
+        PrivilegedSelector().select(scene_view(0, POS), 2)
 
 
 def test_criticality_first_fills_the_slots_fragile_then_soft_then_durable():
@@ -94,15 +81,15 @@ def test_criticality_first_fills_the_slots_fragile_then_soft_then_durable():
     assert criticality_first(box, positions, classes, 3, soft_reach=0.0) == [2, 0, 3]  # soft before durable
     assert criticality_first(box, positions, classes, 4, soft_reach=0.0) == [2, 0, 3, 1]
     sel = PrivilegedCriticality(soft_reach=0.0)
-    sel.reset(view(0, POS, classes), 3)
-    assert sel.select(view(0, POS, classes), 3) == [2, 0, 3]
+    sel.reset(scene_view(0, POS, classes), 3)
+    assert sel.select(scene_view(0, POS, classes), 3) == [2, 0, 3]
     # where privileged tops up with the nearest object of any class, the durable one (1) can take a soft one's slot
     far_soft = ["fragile", "durable", "durable", "soft"]
     moved = [[0.9, 0.0], [0.2, 0.0], [0.0, 0.5], [0.0, 0.6]]
-    assert PrivilegedSelector().select(view(0, moved, far_soft), 2) == [0, 1]
-    assert PrivilegedCriticality(soft_reach=0.0).select(view(0, moved, far_soft), 2) == [0, 3]
+    assert PrivilegedSelector().select(scene_view(0, moved, far_soft), 2) == [0, 1]
+    assert PrivilegedCriticality(soft_reach=0.0).select(scene_view(0, moved, far_soft), 2) == [0, 3]
     with pytest.raises(ValueError, match="privileged_classes"):
-        PrivilegedCriticality().select(view(0, POS), 2)
+        PrivilegedCriticality().select(scene_view(0, POS), 2)
 
 
 def test_a_soft_object_within_reach_ranks_with_the_fragile_ones():
@@ -114,7 +101,7 @@ def test_a_soft_object_within_reach_ranks_with_the_fragile_ones():
     assert criticality_first(box, positions, classes, 2, soft_reach=0.05) == [2, 0]
     assert criticality_first(box, positions, classes, 4, soft_reach=0.15) == [3, 2, 0, 1]
     assert criticality_first(box, positions, ["soft", "durable", "soft", "durable"], 2, soft_reach=0.3) == [2, 0]
-    assert PrivilegedCriticality(soft_reach=0.15).select(view(0, POS, classes), 2) == [3, 2]
+    assert PrivilegedCriticality(soft_reach=0.15).select(scene_view(0, POS, classes), 2) == [3, 2]
     assert make_object_selector("privileged-criticality", SelectorOptions(soft_reach=0.15)).soft_reach == 0.15
     with pytest.raises(ValueError, match="soft_reach"):
         criticality_first(box, positions, classes, 2, soft_reach=-0.1)
@@ -134,18 +121,18 @@ def test_display_names_never_call_the_offline_classifier_a_vlm():
 def test_privileged_repicks_on_the_dynamic_schedule():
     classes = ["fragile", "fragile", "durable", "durable"]
     sel = PrivilegedSelector(interval=4)
-    sel.reset(view(0, POS, classes), 1)
-    assert sel.select(view(0, POS, classes), 1) == [1]
+    sel.reset(scene_view(0, POS, classes), 1)
+    assert sel.select(scene_view(0, POS, classes), 1) == [1]
     closer0 = [[0.05, 0.0], [0.2, 0.0], [0.0, 0.5], [0.0, -0.1]]
-    assert sel.select(view(3, closer0, classes), 1) == [1]
-    assert sel.select(view(4, closer0, classes), 1) == [0]
+    assert sel.select(scene_view(3, closer0, classes), 1) == [1]
+    assert sel.select(scene_view(4, closer0, classes), 1) == [0]
 
 
 def test_full_selector_and_constraint_selectors():
-    assert FullSelector().select(view(0, POS), 4) == [0, 1, 2, 3]
+    assert FullSelector().select(scene_view(0, POS), 4) == [0, 1, 2, 3]
     classes = ["fragile", "soft", "durable", "fragile"]
-    assert ConservativeConstraints().assign(view(0, POS, classes)) == ["no_contact"] * 4
-    assert GroundTruthConstraints().assign(view(0, POS, classes)) == ["no_contact", "soft_contact", "any_contact",
+    assert ConservativeConstraints().assign(scene_view(0, POS, classes)) == ["no_contact"] * 4
+    assert GroundTruthConstraints().assign(scene_view(0, POS, classes)) == ["no_contact", "soft_contact", "any_contact",
                                                                       "no_contact"]
 
 

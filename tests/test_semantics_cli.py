@@ -15,17 +15,12 @@ from PIL import Image
 from safemanip.cli import main
 from safemanip.scene.catalog import CONSTRAINT_TYPES
 from safemanip.semantics.semantic_backend import DEFAULT_EXAMPLES
-
-
-def run(capsys, *argv):
-    code = main(list(argv))
-    out, err = capsys.readouterr()
-    return code, out, err
+from conftest import FakeServer, json_reply, run_cli, schema_of
 
 
 def test_classify_constraints_prints_name_tab_constraint_for_any_names(capsys):
-    code, out, err = run(capsys, "classify-constraints", "red mug", "toy sheep", "plastic water bottle",
-                         "a porcelain teacup with gold rim")
+    code, out, err = run_cli(capsys, ["classify-constraints", "red mug", "toy sheep", "plastic water bottle",
+                                      "a porcelain teacup with gold rim"])
     assert code == 0, err
     lines = [line.split("\t") for line in out.strip().splitlines()]
     assert [n for n, _ in lines] == ["red mug", "toy sheep", "plastic water bottle", "a porcelain teacup with gold rim"]
@@ -34,9 +29,9 @@ def test_classify_constraints_prints_name_tab_constraint_for_any_names(capsys):
 
 
 def test_v1_examples_selectable(capsys):
-    code, out, _ = run(capsys, "classify-constraints", "--semantic-examples", "v1", "glass jar")
+    code, out, _ = run_cli(capsys, ["classify-constraints", "--semantic-examples", "v1", "glass jar"])
     assert code == 0 and out == "glass jar\tsoft_contact\n"  # v1's known error; v2 says no_contact
-    code, out, _ = run(capsys, "classify-constraints", "glass jar")
+    code, out, _ = run_cli(capsys, ["classify-constraints", "glass jar"])
     assert code == 0 and out == "glass jar\tno_contact\n"
 
 
@@ -52,7 +47,7 @@ def test_v1_examples_selectable(capsys):
 ])
 def test_input_errors_exit_2_with_one_line(capsys, monkeypatch, argv, message):
     monkeypatch.delenv("OPENAI_API_KEY", raising=False)
-    code, out, err = run(capsys, *argv)
+    code, out, err = run_cli(capsys, argv)
     assert code == 2 and message in err and "Traceback" not in err
     assert err.startswith(f"safemanip {argv[0]}: error:")
 
@@ -64,35 +59,34 @@ def test_argparse_errors_exit_2(capsys, argv):
 
 
 def test_openai_server_down_or_cache_miss_exit_2(capsys, tmp_path):
-    code, _, err = run(capsys, "classify-constraints", "--vlm-backend", "openai", "--vlm-base-url", "http://127.0.0.1:9/v1",
-                       "--vlm-attempts", "1", "--vlm-timeout", "2", "mug")
+    code, _, err = run_cli(capsys, ["classify-constraints", "--vlm-backend", "openai", "--vlm-base-url", "http://127.0.0.1:9/v1",
+                                    "--vlm-attempts", "1", "--vlm-timeout", "2", "mug"])
     assert code == 2 and "cannot reach" in err and "Traceback" not in err
-    code, _, err = run(capsys, "classify-constraints", "--vlm-backend", "openai", "--vlm-cache", str(tmp_path),
-                       "--vlm-cache-only", "mug")
+    code, _, err = run_cli(capsys, ["classify-constraints", "--vlm-backend", "openai", "--vlm-cache", str(tmp_path),
+                                    "--vlm-cache-only", "mug"])
     assert code == 2 and "cache miss" in err
 
 
 @pytest.mark.protocol
 def test_openai_classify_against_local_server_then_replay_from_cache(capsys, tmp_path):
-    from test_semantics_openai import FakeServer, json_reply, schema_of
 
     def answer(req):
         labels = schema_of(req)["properties"]["constraints"]["required"]
         return {"constraints": {lbl: {"explanation": "test", "constraint": "soft_contact"} for lbl in labels}}
 
     with FakeServer(json_reply(answer)) as server:
-        code, out, err = run(capsys, "classify-constraints", "--vlm-backend", "openai", "--vlm-base-url", server.base_url,
-                             "--vlm-model", "test-model", "--vlm-cache", str(tmp_path), "red mug", "toy sheep")
+        code, out, err = run_cli(capsys, ["classify-constraints", "--vlm-backend", "openai", "--vlm-base-url", server.base_url,
+                                          "--vlm-model", "test-model", "--vlm-cache", str(tmp_path), "red mug", "toy sheep"])
     assert code == 0, err
     assert out == "red mug\tsoft_contact\ntoy sheep\tsoft_contact\n" and len(server.requests) == 1
-    code, out2, err = run(capsys, "classify-constraints", "--vlm-backend", "openai", "--vlm-model", "test-model",
-                          "--vlm-cache", str(tmp_path), "--vlm-cache-only", "red mug", "toy sheep")
+    code, out2, err = run_cli(capsys, ["classify-constraints", "--vlm-backend", "openai", "--vlm-model", "test-model",
+                                       "--vlm-cache", str(tmp_path), "--vlm-cache-only", "red mug", "toy sheep"])
     assert code == 0 and out2 == out, err
 
 
 def test_constraint_matrix_prints_both_tables_and_json(capsys, tmp_path):
     path = tmp_path / "m.json"
-    code, out, err = run(capsys, "constraint-matrix", "--trials", "20", "--seed", "1", "--json", str(path))
+    code, out, err = run_cli(capsys, ["constraint-matrix", "--trials", "20", "--seed", "1", "--json", str(path)])
     assert code == 0, err
     assert "Table III" in out and "Table IV" in out and "no_contact (GT)" in out
     result = json.loads(path.read_text())
@@ -100,16 +94,14 @@ def test_constraint_matrix_prints_both_tables_and_json(capsys, tmp_path):
     assert result["objects"] == "catalog"
     for row in result["table3"].values():
         assert abs(sum(row[c] for c in CONSTRAINT_TYPES) - 100.0) < 0.2
-    code, out, err = run(capsys, "constraint-matrix", "--trials", "5", "--objects", "paper", "--objects-per-scene", "8")
+    code, out, err = run_cli(capsys, ["constraint-matrix", "--trials", "5", "--objects", "paper", "--objects-per-scene", "8"])
     assert code == 0 and "(paper set)" in out, err
     assert sum(1 for line in out.splitlines() if line.rstrip().endswith(" 5")) == 8  # 8 objects, 5 appearances each
 
 
-def test_render_query_writes_annotated_pair_and_sorted_list(capsys, tmp_path):
-    code, out, err = run(capsys, "render-query", "--seed", "4", "--out", str(tmp_path), "--n-objects", "4",
-                         "--steps", "8", "--vlm-backend", "none")
-    if code == 2 and "renderer" in err:
-        pytest.skip(f"no offscreen OpenGL here: {err}")
+def test_render_query_writes_annotated_pair_and_sorted_list(capsys, tmp_path, gl):
+    code, out, err = run_cli(capsys, ["render-query", "--seed", "4", "--out", str(tmp_path), "--n-objects", "4",
+                                      "--steps", "8", "--vlm-backend", "none"])
     assert code == 0, err
     meta = json.loads((tmp_path / "query_t008.json").read_text())
     assert meta["query_t"] == 8 and meta["frames_from_queries_at_t"] == [4, 8]

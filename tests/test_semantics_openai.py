@@ -1,7 +1,7 @@
 """Protocol tests: OpenAIBackend against a local chat-completions server on 127.0.0.1.
 
-The server is a plain http.server in a thread; each test scripts how it answers (structured answer,
-HTTP 500, garbage, or hanging past the client's timeout).
+The server is a plain http.server in a thread (``conftest.FakeServer``, shared with the other openai tests); each
+test scripts how it answers (structured answer, HTTP 500, garbage, or hanging past the client's timeout).
 """
 
 from __future__ import annotations
@@ -10,109 +10,23 @@ import base64
 import json
 import logging
 import threading
-import time
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Callable
 
-import numpy as np
 import pytest
 
-from safemanip.selection.base import SceneView
 from safemanip.semantics import BackendError, ConstraintQuery, ObjectQuery, ResponseCache
 from safemanip.semantics.openai_backend import OpenAIBackend
 from safemanip.semantics.selectors import DynamicVLMSelector, VLMConstraintSelector, dynamic_knn
+from conftest import VLM_NAMES, FakeServer, backend_for, completion, json_reply, pick_last_k, schema_of, vlm_view
 
 pytestmark = pytest.mark.protocol
-
-NAMES = ("red mug", "toy sheep", "soda can")
-
-
-def completion(content: str, finish_reason: str = "stop") -> dict:
-    return {"id": "chatcmpl-test", "object": "chat.completion", "created": int(time.time()), "model": "test-model",
-            "choices": [{"index": 0, "finish_reason": finish_reason,
-                         "message": {"role": "assistant", "content": content, "refusal": None}}],
-            "usage": {"prompt_tokens": 1, "completion_tokens": 1, "total_tokens": 2}}
-
-
-class FakeServer:
-    """Records requests; ``reply(request_json) -> (status, body bytes, content type)`` decides the answer."""
-
-    def __init__(self, reply: Callable[[dict], tuple[int, bytes, str]]) -> None:
-        self.reply = reply
-        self.requests: list[dict] = []
-        self.headers: list[dict] = []
-        outer = self
-
-        class Handler(BaseHTTPRequestHandler):
-            def do_POST(self) -> None:  # noqa: N802 - http.server naming
-                body = self.rfile.read(int(self.headers.get("Content-Length", 0)))
-                req = json.loads(body)
-                outer.requests.append({"path": self.path, **req})
-                outer.headers.append(dict(self.headers))
-                status, payload, ctype = outer.reply(req)
-                try:
-                    self.send_response(status)
-                    self.send_header("Content-Type", ctype)
-                    self.send_header("Content-Length", str(len(payload)))
-                    self.end_headers()
-                    self.wfile.write(payload)
-                except (BrokenPipeError, ConnectionResetError):
-                    pass  # the client gave up (timeout test)
-
-            def log_message(self, *args) -> None:
-                pass
-
-        self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.httpd.daemon_threads = True
-        self.thread = threading.Thread(target=self.httpd.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
-
-    @property
-    def base_url(self) -> str:
-        return f"http://127.0.0.1:{self.httpd.server_address[1]}/v1"
-
-    def __enter__(self) -> "FakeServer":
-        self.thread.start()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.httpd.shutdown()
-        self.httpd.server_close()
-
-
-def json_reply(answer_for: Callable[[dict], dict]) -> Callable[[dict], tuple[int, bytes, str]]:
-    return lambda req: (200, json.dumps(completion(json.dumps(answer_for(req)))).encode(), "application/json")
-
-
-def schema_of(req: dict) -> dict:
-    return req["response_format"]["json_schema"]["schema"]
-
-
-def pick_last_k(req: dict) -> dict:
-    """A well-behaved 'model': picks the k labels furthest down the list."""
-    objects = schema_of(req)["properties"]["objects"]
-    labels, k = objects["items"]["enum"], objects["minItems"]
-    return {"image_description": "two frames; the box moves right", "explanation": "fragile and close",
-            "objects": labels[-k:]}
-
-
-def backend_for(server: FakeServer, **kw) -> OpenAIBackend:
-    kw.setdefault("timeout_s", 2.0)
-    kw.setdefault("backoff_s", 0.01)
-    return OpenAIBackend(model="test-model", base_url=server.base_url, **kw)
-
-
-def view(t: int = 0, render=None) -> SceneView:
-    pos = np.array([[0.10, 0.0, 0.85], [0.30, 0.0, 0.85], [0.50, 0.1, 0.85]])
-    box = np.array([[0.0, 0.0, 0.85]])
-    return SceneView(t=t, names=NAMES, positions=pos, velocities=np.zeros((3, 3)), ee_path=box, box_path=box,
-                     box_velocity=np.zeros(3), render=render)
 
 
 def test_object_selection_round_trip_sends_schema_images_and_sorted_labels():
     png = b"\x89PNG fake bytes"
     with FakeServer(json_reply(pick_last_k)) as server:
         backend = backend_for(server)
-        v = view()
+        v = vlm_view()
         answer = backend.select_objects(ObjectQuery(view=v, k=2, order=[2, 0, 1], images=[png]))
     assert answer.ids == [0, 1]  # labels[-2:] of the order [2, 0, 1]
     assert answer.image_description.startswith("two frames")
@@ -141,7 +55,7 @@ def test_constraint_round_trip_and_api_key_not_leaked(monkeypatch, caplog):
 
     with FakeServer(json_reply(answer)) as server, caplog.at_level(logging.DEBUG):
         backend = backend_for(server)
-        got = backend.assign_constraints(ConstraintQuery(names=NAMES))
+        got = backend.assign_constraints(ConstraintQuery(names=VLM_NAMES))
     assert got.constraints == ["no_contact", "any_contact", "soft_contact"]
     auth = {k.lower(): v for k, v in server.headers[0].items()}.get("authorization")
     assert auth == "Bearer sk-test-secret-123", sorted(server.headers[0])
@@ -151,7 +65,7 @@ def test_constraint_round_trip_and_api_key_not_leaked(monkeypatch, caplog):
 def test_cache_round_trip_then_cache_only_serves_without_server(tmp_path):
     with FakeServer(json_reply(pick_last_k)) as server:
         backend = backend_for(server, cache=ResponseCache(tmp_path))
-        q = ObjectQuery(view=view(), k=2, order=[0, 1, 2])
+        q = ObjectQuery(view=vlm_view(), k=2, order=[0, 1, 2])
         first = backend.select_objects(q)
         second = backend.select_objects(q)
     assert len(server.requests) == 1 and not first.cached and second.cached and first.ids == second.ids
@@ -160,7 +74,7 @@ def test_cache_round_trip_then_cache_only_serves_without_server(tmp_path):
                             cache=ResponseCache(tmp_path, mode="cache_only"))
     assert offline.select_objects(q).ids == first.ids
     with pytest.raises(BackendError, match="cache miss"):
-        offline.select_objects(ObjectQuery(view=view(), k=1, order=[0, 1, 2]))
+        offline.select_objects(ObjectQuery(view=vlm_view(), k=1, order=[0, 1, 2]))
     assert offline.calls == 0
 
 
@@ -174,7 +88,7 @@ def test_retry_after_500_then_success():
         return json_reply(pick_last_k)(req)
 
     with FakeServer(reply) as server:
-        answer = backend_for(server, attempts=3).select_objects(ObjectQuery(view=view(), k=1, order=[0, 1, 2]))
+        answer = backend_for(server, attempts=3).select_objects(ObjectQuery(view=vlm_view(), k=1, order=[0, 1, 2]))
     assert answer.ids == [2] and len(server.requests) == 2
 
 
@@ -182,7 +96,7 @@ def test_out_of_schema_answer_is_retried_then_rejected():
     bad = {"image_description": "", "explanation": "", "objects": ["9: piano"]}
     with FakeServer(json_reply(lambda req: bad)) as server:
         with pytest.raises(BackendError, match="piano"):
-            backend_for(server, attempts=2).select_objects(ObjectQuery(view=view(), k=1, order=[0, 1, 2]))
+            backend_for(server, attempts=2).select_objects(ObjectQuery(view=vlm_view(), k=1, order=[0, 1, 2]))
     assert len(server.requests) == 2
 
 
@@ -194,7 +108,7 @@ def test_out_of_schema_answer_is_retried_then_rejected():
 def test_server_failures_fall_back_and_are_counted(reply):
     with FakeServer(reply) as server:
         selector = DynamicVLMSelector(backend_for(server, attempts=2), query_interval=4)
-        v = view()
+        v = vlm_view()
         selector.reset(v, 2)
         ids = selector.select(v, 2)
         assert ids == dynamic_knn(v, 2)
@@ -214,7 +128,7 @@ def test_hanging_server_hits_timeout_and_falls_back():
     with FakeServer(hang) as server:
         backend = backend_for(server, timeout_s=0.3, attempts=2)
         selector = DynamicVLMSelector(backend)
-        v = view()
+        v = vlm_view()
         selector.reset(v, 1)
         ids = selector.select(v, 1)
         release.set()
@@ -227,7 +141,7 @@ def test_http_401_is_not_retried_and_says_what_to_fix():
     with FakeServer(lambda req: (401, b'{"error": {"message": "bad key"}}', "application/json")) as server:
         backend = backend_for(server, attempts=3)
         with pytest.raises(BackendError, match="OPENAI_API_KEY"):
-            backend.assign_constraints(ConstraintQuery(names=NAMES))
+            backend.assign_constraints(ConstraintQuery(names=VLM_NAMES))
     assert len(server.requests) == 1
 
 
@@ -250,7 +164,7 @@ def content_reply(content_for: Callable[[dict], str]) -> Callable[[dict], tuple[
 def test_answers_written_loosely_by_a_served_model_are_read_right(content, expected):
     with FakeServer(content_reply(lambda req: content)) as server:
         selector = DynamicVLMSelector(backend_for(server, attempts=1), query_interval=4)
-        v = view()
+        v = vlm_view()
         selector.reset(v, 2)
         assert selector.select(v, 2) == expected
     assert selector.stats.fallbacks == 0
@@ -267,7 +181,7 @@ def test_answers_written_loosely_by_a_served_model_are_read_right(content, expec
 def test_answers_that_name_the_wrong_objects_fall_back_and_are_counted(content):
     with FakeServer(content_reply(lambda req: content)) as server:
         selector = DynamicVLMSelector(backend_for(server, attempts=2), query_interval=4)
-        v = view()
+        v = vlm_view()
         selector.reset(v, 2)
         assert selector.select(v, 2) == dynamic_knn(v, 2)
     assert selector.stats.fallbacks == 1 and len(server.requests) == 2  # retried once, then the fallback
@@ -279,7 +193,7 @@ def test_a_refusal_field_is_not_retried_and_falls_back():
                             "message": {"role": "assistant", "content": None, "refusal": "I can't assist with that."}}]}
     with FakeServer(lambda req: (200, json.dumps(refusal).encode(), "application/json")) as server:
         cons = VLMConstraintSelector(backend_for(server, attempts=3))
-        assert cons.assign(view()) == ["no_contact"] * 3
+        assert cons.assign(vlm_view()) == ["no_contact"] * 3
     assert cons.stats.fallbacks == 1 and len(server.requests) == 1
 
 
@@ -288,8 +202,8 @@ def test_constraints_keyed_by_name_and_written_loosely_are_read_right():
              '"1": {"constraint": "any-contact"}, "soda can": {"constraint": "Soft_Contact", "explanation": "plastic"}}}')
     with FakeServer(content_reply(lambda req: loose)) as server:
         cons = VLMConstraintSelector(backend_for(server, attempts=1))
-        assert cons.assign(view()) == ["no_contact", "any_contact", "soft_contact"]
+        assert cons.assign(vlm_view()) == ["no_contact", "any_contact", "soft_contact"]
         missing = '{"constraints": {"red mug": "no contact", "toy sheep": "any contact"}}'  # the can is left out
     with FakeServer(content_reply(lambda req: missing)) as server:
         cons = VLMConstraintSelector(backend_for(server, attempts=1))
-        assert cons.assign(view()) == ["no_contact"] * 3 and cons.stats.fallbacks == 1
+        assert cons.assign(vlm_view()) == ["no_contact"] * 3 and cons.stats.fallbacks == 1

@@ -6,9 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from safemanip.evaluation.episode import CATEGORIES
 from safemanip.evaluation.sweep import SweepError, available, cells_of, load_config, render, run_sweep
-from test_evaluation import make_policy
+from conftest import fake_summary, make_policy
 
 
 def test_shipped_sweeps_load_and_form_the_paper_grids():
@@ -60,7 +59,7 @@ def test_resume_skips_stored_cells_and_reports_missing_policies(tmp_path):
     cells = cells_of(load_config(name))
     static = next(c for c in cells if c.selector == "static-knn" and c.k == 2)
     (out / "cells").mkdir(parents=True)
-    stored = {"cell": asdict(static), "summary": _fake_summary(0.5)}
+    stored = {"cell": asdict(static), "summary": fake_summary(0.5)}
     (out / "cells" / f"{static.id}.json").write_text(json.dumps(stored))
 
     logs = []
@@ -80,21 +79,6 @@ def test_resume_skips_stored_cells_and_reports_missing_policies(tmp_path):
     assert again["ran"] == [] and sorted(again["done"]) == sorted([static.id, ran])
 
 
-def _fake_summary(success, n=100, **fails):
-    counts = {c: 0 for c in CATEGORIES}
-    counts["success"] = int(success * n)
-    counts.update(fails)
-    counts["timeout"] += n - sum(counts.values())
-
-    def rate(c):
-        return {"count": c, "rate": c / n, "ci95": [max(0, c / n - 0.1), min(1, c / n + 0.1)]}
-
-    viol = sum(counts[c] for c in ("top_box", "out_of_workspace", "collision_unselected", "collision_selected",
-                                   "soft_contact"))
-    return {"episodes": n, "success": rate(counts["success"]), "safety_violation": rate(viol),
-            "categories": {c: rate(v) for c, v in counts.items()}, "mean_length": 100.0}
-
-
 @pytest.mark.parametrize("name", ["fig4", "fig5", "fig6", "table1"])
 def test_render_only_uses_stored_results(tmp_path, name):
     cfg = load_config(name)
@@ -102,7 +86,7 @@ def test_render_only_uses_stored_results(tmp_path, name):
     for i, cell in enumerate(cells_of(cfg)):
         fails = {"collision_unselected": 10 if cell.selector == "static-knn" else 3, "top_box": 5,
                  "collision_selected": 7}
-        results.append({"cell": asdict(cell), "summary": _fake_summary(0.3 + 0.05 * (i % 5), **fails)})
+        results.append({"cell": asdict(cell), "summary": fake_summary(0.3 + 0.05 * (i % 5), **fails)})
     root = tmp_path / name
     (root / "cells").mkdir(parents=True)
     for r in results:
@@ -137,12 +121,12 @@ def test_cells_that_query_the_semantic_backend_go_stale_with_its_version(tmp_pat
     assert vlm_cell.vlm == f"semantic:{DEFAULT_EXAMPLES}" and plain_cell.vlm is None
     path = tmp_path / "cell.json"
     old = {**asdict(vlm_cell), "vlm": "semantic:class_examples_v2.json"}
-    path.write_text(json.dumps({"cell": old, "summary": _fake_summary(0.5)}))
+    path.write_text(json.dumps({"cell": old, "summary": fake_summary(0.5)}))
     assert not _done(path, vlm_cell)  # a result of an older classifier is redone
     legacy = {k: v for k, v in asdict(plain_cell).items() if k != "vlm"}  # stored before the field existed
-    path.write_text(json.dumps({"cell": legacy, "summary": _fake_summary(0.5)}))
+    path.write_text(json.dumps({"cell": legacy, "summary": fake_summary(0.5)}))
     assert _done(path, plain_cell)
-    path.write_text(json.dumps({"cell": {k: v for k, v in asdict(vlm_cell).items() if k != "vlm"}, "summary": _fake_summary(0.5)}))
+    path.write_text(json.dumps({"cell": {k: v for k, v in asdict(vlm_cell).items() if k != "vlm"}, "summary": fake_summary(0.5)}))
     assert not _done(path, vlm_cell)
 
 
@@ -190,7 +174,7 @@ def test_a_sweep_renders_only_its_own_cells_from_a_shared_folder(tmp_path):
     (root / "cells").mkdir(parents=True)
     for cell in cells_of(load_config("fig5")):
         if cell.k in (2, 6) and "selaware" not in cell.policy:
-            summary = _fake_summary(0.5 if cell.n_objects == 6 else 0.9, n=100)
+            summary = fake_summary(0.5 if cell.n_objects == 6 else 0.9, n=100)
             (root / "cells" / f"{cell.id}.json").write_text(json.dumps({"cell": asdict(cell), "summary": summary}))
     status = run_sweep("fig6", out=str(root), render_only=True, log=lambda s: None)
     table = Path(status["table"]).read_text()
@@ -216,7 +200,7 @@ def test_pooled_cells_carry_a_seed_level_interval_shown_in_braces():
     from safemanip.evaluation.sweep import markdown_table, pool_seeds
 
     cfg = load_config("fig4")
-    results = [{"cell": asdict(c), "summary": _fake_summary(rate, n=1000)}
+    results = [{"cell": asdict(c), "summary": fake_summary(rate, n=1000)}
                for c, rate in zip([c for c in cells_of(cfg) if c.algorithm == "rarl" and c.n_objects == 2],
                                   (0.70, 0.85, 0.78))]
     (pooled,) = pool_seeds(results)
@@ -276,7 +260,7 @@ def test_a_sweep_measures_each_cell_with_and_without_a_safety_filter(tmp_path):
     out = tmp_path / "out"
     (out / "cells").mkdir(parents=True)
     old = {k: v for k, v in asdict(plain).items() if k != "shield"}  # as stored before the field existed
-    (out / "cells" / f"{plain.id}.json").write_text(json.dumps({"cell": old, "summary": _fake_summary(0.5)}))
+    (out / "cells" / f"{plain.id}.json").write_text(json.dumps({"cell": old, "summary": fake_summary(0.5)}))
     status = run_sweep(str(spec), out=str(out), workers=1, progress=False, log=lambda s: None)
     assert status["done"] == [plain.id] and status["ran"] == [plain.id + "__shield-brake"]
     shielded = json.loads((out / "cells" / f"{plain.id}__shield-brake.json").read_text())

@@ -4,7 +4,6 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -12,10 +11,7 @@ import pytest
 
 from safemanip.rl.checkpoint import find_checkpoint, load_policy, read_checkpoint
 from safemanip.rl.config import ConfigError, TrainConfig
-
-TINY = {"n_objects": 1, "hidden": [32, 32], "batch_size": 32, "buffer_size": 5000, "learning_starts": 300,
-        "random_steps": 300, "eval_episodes": 2, "eval_every_s": 3, "checkpoint_every_s": 2, "log_every_s": 1,
-        "envs_per_collector": 2, "env_steps_per_update": 2.0}
+from conftest import ROOT, SAFEMANIP, TINY_TRAIN
 
 
 def test_bad_configs_fail_before_any_work(tmp_path):
@@ -37,7 +33,7 @@ def test_bad_configs_fail_before_any_work(tmp_path):
 
 
 def test_cli_rejects_a_bad_config_with_a_message(tmp_path):
-    out = subprocess.run([sys.executable, "-m", "safemanip.cli", "train", "--gamma", "2", "--out", str(tmp_path / "r")],
+    out = subprocess.run([*SAFEMANIP, "train", "--gamma", "2", "--out", str(tmp_path / "r")],
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 2
     assert "argument --gamma: must be in (0, 1), got 2" in out.stderr
@@ -51,9 +47,9 @@ def _start(cmd, log):
 @pytest.mark.slow
 def test_sigkill_then_resume_loses_at_most_one_checkpoint_interval(tmp_path):
     cfg_file = tmp_path / "tiny.json"
-    cfg_file.write_text(json.dumps({**TINY, "minutes": 0.5, "total_env_steps": 10**7}))
+    cfg_file.write_text(json.dumps({**TINY_TRAIN, "minutes": 0.5, "total_env_steps": 10**7}))
     run = tmp_path / "run"
-    base = [sys.executable, "-m", "safemanip.cli", "train", "--config", str(cfg_file), "--out", str(run), "--no-progress"]
+    base = [*SAFEMANIP, "train", "--config", str(cfg_file), "--out", str(run), "--no-progress"]
     with open(tmp_path / "log1.txt", "w") as log:
         proc = _start(base, log)
         deadline = time.time() + 90
@@ -73,7 +69,7 @@ def test_sigkill_then_resume_loses_at_most_one_checkpoint_interval(tmp_path):
     config = json.loads((run / "config.json").read_text())  # a budget may change on resume: a short one
     (run / "config.json").write_text(json.dumps({**config, "total_env_steps": meta_before["env_steps"] + 2000}))
     with open(tmp_path / "log2.txt", "w") as log:
-        resumed = subprocess.run([sys.executable, "-m", "safemanip.cli", "train", "--resume", str(run), "--no-progress"],
+        resumed = subprocess.run([*SAFEMANIP, "train", "--resume", str(run), "--no-progress"],
                                  stdout=log, stderr=subprocess.STDOUT, timeout=180)
     text = (tmp_path / "log2.txt").read_text()
     assert resumed.returncode == 0, text[-2000:]
@@ -96,3 +92,20 @@ def test_policy_file_is_validated(tmp_path):
         load_policy(fake)
     with pytest.raises(ValueError, match="no policy file"):
         load_policy(tmp_path / "missing.safetensors")
+
+
+def test_every_shipped_policy_and_training_record_is_in_the_current_format():
+    """The retired formats (issue 43: ``n_objects`` for k, ``env_factory``) are refused, so nothing shipped may still
+    use them: every policy in the package loads, and its training config and every training record under
+    results/training read as a TrainConfig."""
+    from safemanip.rl.checkpoint import SHIPPED_POLICIES
+    from safemanip.rl.config import load_run_config
+
+    policies = sorted(SHIPPED_POLICIES.glob("*.safetensors"))
+    records = sorted((ROOT / "results" / "training").glob("*/config.json"))
+    assert policies and records
+    for path in policies:
+        _, meta = load_policy(path)
+        TrainConfig.from_dict(meta["train_config"])
+    for path in records:
+        load_run_config(path)

@@ -11,7 +11,7 @@ import pytest
 from safemanip.semantics import BackendError, ConstraintQuery, ResponseCache
 from safemanip.semantics.guard import GuardedBackend
 from safemanip.semantics.openai_backend import OpenAIBackend, redact
-from test_semantics_openai import NAMES, FakeServer, backend_for, json_reply, schema_of, view
+from conftest import VLM_NAMES, FakeServer, backend_for, json_reply, make_policy, schema_of, vlm_view
 
 SECRET = "sk-test-SECRET-0123456789abcdef"
 
@@ -36,7 +36,7 @@ def test_the_api_key_echoed_by_the_server_is_redacted(monkeypatch, caplog, capsy
     with EchoAuth() as server:
         backend = backend_for(server)
         with pytest.raises(BackendError) as err:
-            backend.assign_constraints(ConstraintQuery(names=NAMES))
+            backend.assign_constraints(ConstraintQuery(names=VLM_NAMES))
     assert server.headers and SECRET in auth(server.headers[-1])  # the server did see the key and echoed it
     text = str(err.value) + caplog.text + "".join(capsys.readouterr())
     assert "HTTP 400" in str(err.value) and "[redacted]" in str(err.value)
@@ -95,10 +95,10 @@ def test_circuit_breaker_opens_after_repeated_failures_and_stays_open():
     guard = GuardedBackend(inner, max_failures=3)
     for _ in range(3):
         with pytest.raises(BackendError, match="server down"):
-            guard.assign_constraints(ConstraintQuery(names=NAMES))
+            guard.assign_constraints(ConstraintQuery(names=VLM_NAMES))
     for _ in range(5):
         with pytest.raises(BackendError, match="circuit breaker open"):
-            guard.assign_constraints(ConstraintQuery(names=NAMES))
+            guard.assign_constraints(ConstraintQuery(names=VLM_NAMES))
     assert inner.calls == 3 and guard.status()["breaker_open"]
     assert "3 consecutive failed queries" in guard.status()["reason"]
 
@@ -111,7 +111,7 @@ def test_episode_and_run_budgets():
         guard.new_episode()
         for _ in range(5):
             with pytest.raises(BackendError):
-                guard.assign_constraints(ConstraintQuery(names=NAMES))
+                guard.assign_constraints(ConstraintQuery(names=VLM_NAMES))
     # 3 calls (12 s) fit the first episode's 10 s budget, 3 the second's, then the run's 25 s are used up
     assert inner.calls == 7 and guard.status()["breaker_open"] and "run time budget" in guard.status()["reason"]
 
@@ -122,15 +122,13 @@ def test_selectors_fall_back_when_the_breaker_is_open():
     sel = VLMConstraintSelector(GuardedBackend(Failing(), max_failures=1))
     for _ in range(3):
         sel.reset()
-        assert sel.assign(view()) == ["no_contact"] * len(NAMES)
+        assert sel.assign(vlm_view()) == ["no_contact"] * len(VLM_NAMES)
     assert sel.stats.fallbacks == 3 and sel.backend.inner.calls == 1
 
 
 def test_eval_records_the_open_breaker(capsys, tmp_path):
     """A dead server: eval still finishes, every query falls back, and the results say the breaker opened."""
     from safemanip.cli import main
-
-    from test_evaluation import make_policy
 
     out = tmp_path / "ev"
     policy = make_policy(tmp_path / "k2-all.safetensors", 2, constraints="all")
@@ -153,28 +151,26 @@ def test_cache_entries_of_another_prompt_or_schema_version_are_not_used(tmp_path
     with FakeServer(json_reply(answer)) as server:
         cache = ResponseCache(tmp_path)
         first = backend_for(server, cache=cache)
-        first.assign_constraints(ConstraintQuery(names=NAMES))
+        first.assign_constraints(ConstraintQuery(names=VLM_NAMES))
         sent = len(server.requests)
-        backend_for(server, cache=ResponseCache(tmp_path)).assign_constraints(ConstraintQuery(names=NAMES))
+        backend_for(server, cache=ResponseCache(tmp_path)).assign_constraints(ConstraintQuery(names=VLM_NAMES))
         assert len(server.requests) == sent  # same versions: a cache hit
         (entry,) = list(tmp_path.glob("??/*.json"))
         stored = json.loads(entry.read_text())
         stored["meta"]["schema_version"] = "0"
         entry.write_text(json.dumps(stored))
-        backend_for(server, cache=ResponseCache(tmp_path)).assign_constraints(ConstraintQuery(names=NAMES))
+        backend_for(server, cache=ResponseCache(tmp_path)).assign_constraints(ConstraintQuery(names=VLM_NAMES))
         assert len(server.requests) == sent + 1  # recorded under another schema version: asked again
         with pytest.raises(BackendError, match="schema_version"):
             stored["meta"]["schema_version"] = "0"
             entry.write_text(json.dumps(stored))
             backend_for(server, cache=ResponseCache(tmp_path, mode="cache_only")).assign_constraints(
-                ConstraintQuery(names=NAMES))
+                ConstraintQuery(names=VLM_NAMES))
 
 
 def test_sweep_takes_the_vlm_limits_and_records_the_open_breaker(capsys, tmp_path):
     """The same flags on sweep: they reach the cells that query the backend (and only those)."""
     from safemanip.cli import main
-
-    from test_evaluation import make_policy
 
     policy = make_policy(tmp_path / "rarl-k2-all.safetensors", 2, constraints="all")
     cfg = {"name": "mini-vlm", "title": "mini", "figure": "fig5", "episodes": 2, "seed": 0, "judge": "ground-truth",

@@ -24,10 +24,15 @@ class Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {redact(message)} (see: {self.prog} --help)\n")
 
 
+DESCRIPTION = ("Safe robot manipulation in clutter with task-relevant reach-avoid reinforcement learning: train "
+               "policies, evaluate them with object and constraint selection, run the paper's experiments.")
+"""What ``safemanip --help`` says first (the module docstring above is for developers)."""
+
+
 def build_parser() -> argparse.ArgumentParser:
     from safemanip.cli import demo, evaluate, semantics, train
 
-    parser = Parser(prog="safemanip", description=__doc__.splitlines()[0])
+    parser = Parser(prog="safemanip", description=DESCRIPTION)
     sub = parser.add_subparsers(dest="command", required=True)
     demo.register(sub)
     train.register(sub)

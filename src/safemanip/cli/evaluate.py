@@ -40,9 +40,6 @@ def _cmd_eval(args) -> int:
 
     from safemanip.evaluation.harness import EvalRequest, evaluate
 
-    if args.old_constraints is not None:
-        raise CliError("--constraints names a training constraint set (safemanip train); the constraint selector of an "
-                       f"evaluation is --constraint-selector: use --constraint-selector {args.old_constraints}")
     given = {f.name: getattr(args, f.name) for f in fields(EvalRequest) if getattr(args, f.name, None) is not None}
     req = EvalRequest(**{"policy": None, **given, "progress": not args.no_progress})
     report = evaluate(req)
@@ -112,7 +109,6 @@ def register(subparsers) -> None:
                                                                   "constraint_selector": CONSTRAINT_SELECTORS,
                                                                   "planner": PLANNER_AVOID, "layout": LAYOUTS,
                                                                   "embodiment": EMBODIMENTS, "shield": SHIELDS})
-    ev.add_argument("--constraints", dest="old_constraints", help=argparse.SUPPRESS)  # renamed: says so
     add_vlm_options(ev)
     _add_run_options(ev)
     ev.add_argument("--json", action="store_true", help="also print the JSON summary")

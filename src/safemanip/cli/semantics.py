@@ -51,8 +51,8 @@ def _add_backend_options(p: argparse.ArgumentParser, default: str = "semantic", 
                    help=f"semantic: offline sentence-embedding classifier (default); openai: any OpenAI-compatible "
                         f"chat-completions server{none_help}")
     g.add_argument("--semantic-examples", metavar="VERSION",
-                   help="semantic backend: example set and decision rule, a version v1 ... v5 (default: v3) or the "
-                        "file name of a shipped class-example set (class_examples_v3.json); nothing else is read")
+                   help="semantic backend: example set and decision rule, a version v1 ... v6 (default: v6) or the "
+                        "file name of a shipped class-example set (class_examples_v6.json); nothing else is read")
     g.add_argument("--vlm-base-url", metavar="URL",
                    help="openai backend: server base URL ending in /v1 (default: the OpenAI API, needs OPENAI_API_KEY)")
     g.add_argument("--vlm-model", metavar="M", help="openai backend: model name (default: gpt-4o)")

@@ -106,10 +106,10 @@ class EvalRequest:
     max_episode_steps: int | None = None
     """Episode length in control steps (default: the policy's)."""
     layout: str | None = None
-    """Scene layout, 'route', 'narrow', 'gate' or 'exit' (``scene.placement.LAYOUTS``; default: the one the policy
-    was trained on)."""
+    """Scene layout, 'route', 'narrow', 'gate' or 'exit' (default: the one the policy was trained on). The registry
+    is ``scene.placement.LAYOUTS``."""
     gate_share: float | None = None
-    """Share of gate scenes (``scene.placement.SCENE_KINDS``; default: the layout's). 1 evaluates on gates only."""
+    """Share of gate scenes (default: the layout's). 1 evaluates on gates only (``scene.placement.SCENE_KINDS``)."""
     exit_share: float | None = None
     """Share of exit scenes (default: the layout's). 1 evaluates on exit scenes only."""
     planner: str | None = None
@@ -121,7 +121,8 @@ class EvalRequest:
     """Episodes per worker task (default: about 8 tasks per worker)."""
     soft_reach: float | None = None
     """Semantic and privileged-criticality selection: a soft object within this distance of the held box [m] ranks
-    with the fragile ones (``selection.selectors.criticality_first``; default: DEFAULT_SOFT_REACH)."""
+    with the fragile ones (default 0: soft objects rank after the fragile ones). The rule is
+    ``selection.selectors.criticality_first``; None means its ``DEFAULT_SOFT_REACH``."""
     shield: str | None = None
     """A safety filter around the policy: 'brake' overrides an action after which the held box could not stop short
     of a protected object (docs/safety.md; default: none)."""
@@ -152,8 +153,8 @@ def _policy_problems(req: EvalRequest, problems: list[str]):
         problems.append(f"--policy {req.policy}: its metadata lacks {missing}; re-export it with safemanip train")
         return None, None
     env_kwargs = meta["env_kwargs"]
-    if not isinstance(env_kwargs, dict) or "factory" in env_kwargs or env_kwargs.get("env", "slide-out") != "slide-out":
-        trained_on = env_kwargs.get("env", env_kwargs.get("factory")) if isinstance(env_kwargs, dict) else env_kwargs
+    if not isinstance(env_kwargs, dict) or env_kwargs.get("env", "slide-out") != "slide-out":
+        trained_on = env_kwargs.get("env") if isinstance(env_kwargs, dict) else env_kwargs
         problems.append(f"--policy {req.policy} was trained on {trained_on!r}, not the slide-out task; only "
                         f"slide-out policies can be evaluated here")
         return None, None

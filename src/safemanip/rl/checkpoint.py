@@ -295,6 +295,9 @@ def load_policy(path: str | Path):
         raise PolicyFileError(f"{path}: the policy's metadata is not valid JSON ({err.reason})") from err
     if not isinstance(meta, dict):
         raise PolicyFileError(f"{path}: the policy's metadata must be a JSON object")
+    retired = retired_meta_format(meta)
+    if retired:
+        raise PolicyFileError(f"{path}: {retired}")
     problems = policy_meta_problems(meta)
     if problems:
         raise PolicyFileError(f"{path}: its metadata is not that of a policy this package wrote: {'; '.join(problems)}; "
@@ -331,6 +334,22 @@ def load_policy(path: str | Path):
     if wrong:
         raise PolicyFileError(f"{path}: the metadata does not match the weights: {', '.join(wrong)}")
     return NumpyActor(arrays), meta
+
+
+def retired_meta_format(meta: dict) -> str | None:
+    """Why a policy's metadata is in a retired format, and what to do, or None. Policies written before 2026-12-01
+    name their env by its Python class (``env_kwargs.factory``) and store their training config with the slot count
+    as ``n_objects`` or the env as ``env_factory``; that format was retired in issue 43 and is refused, not
+    converted."""
+    env_kwargs = meta.get("env_kwargs")
+    train = meta.get("train_config")
+    old = ([f"env_kwargs.{key}" for key in ("factory",) if isinstance(env_kwargs, dict) and key in env_kwargs]
+           + [f"train_config.{key}" for key in ("n_objects", "env_factory") if isinstance(train, dict) and key in train])
+    if not old:
+        return None
+    return (f"this policy file's metadata is the format written before 2026-12-01 ({', '.join(old)}), retired in "
+            f"issue 43 and no longer read; re-train the policy with safemanip train (a benchmark policy: re-train "
+            f"its run and re-promote it with results/training/promote.py)")
 
 
 def _checked_set_arrays(path: Path, tensors: dict[str, np.ndarray], meta: dict) -> dict[str, np.ndarray]:

@@ -8,7 +8,7 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 from safemanip.env.config import EnvConfig
-from safemanip.rl.envs import DEFAULT_ENV, ENVS, LEGACY_FACTORIES, SELECTED_ENV, check_env
+from safemanip.rl.envs import DEFAULT_ENV, ENVS, SELECTED_ENV, check_env
 from safemanip.scene.config import MAX_OBJECTS
 from safemanip.scene.embodiment import EMBODIMENTS
 from safemanip.scene.placement import LAYOUTS
@@ -21,11 +21,11 @@ class ConfigError(ValueError):
 @dataclass
 class TrainConfig:
     algorithm: str = "rarl"
-    """'rarl' (discounted reach-avoid backup) or 'vanilla' (DDPG on the discounted return of r = min(l, g),
-    terminated states absorbing: ``rl/backup.py::discounted_return_target``)."""
+    """'rarl' (discounted reach-avoid backup) or 'vanilla' (DDPG on the discounted return of r = min(l, g), with
+    absorbing terminal states). The vanilla target is ``rl/backup.py::discounted_return_target``."""
     k: int = 2
-    """Clutter objects in every training scene: the k object slots the policy sees (a scene at
-    deployment has N >= k objects; N is ``EvalRequest.n_objects``)."""
+    """Clutter objects in every training scene: the k object slots the policy sees (at evaluation a scene may
+    hold N >= k objects: eval's --n-objects)."""
     constraints: str = "conservative"
     """'conservative': every object no_contact (paper F^conser); 'all': each object's constraint drawn
     uniformly from {no_contact, soft_contact, any_contact} every episode."""
@@ -36,18 +36,18 @@ class TrainConfig:
     (``scene.placement.sample_route``). False: the superseded straight-corridor layout (docs/results-history.md),
     in which the Panda cannot solve most scenes with N >= 3. Recorded in the policy's metadata."""
     layout: str = "route"
-    """Which scenes the episodes draw (``scene.placement.LAYOUTS``): 'route' (open scenes), 'narrow' (a channel),
-    'gate' (half gate scenes) or 'exit' (half exit scenes). Recorded in the policy's metadata."""
+    """Which scenes the episodes draw: 'route' (open scenes), 'narrow' (a channel), 'gate' (half gate scenes) or
+    'exit' (half exit scenes). The registry is ``scene.placement.LAYOUTS``; recorded in the policy's metadata."""
     embodiment: str = "panda"
     """Robot: 'panda' (the 7-DoF Franka Panda, the paper's) or 'hand' (the idealised floating-hand ablation).
     Recorded in the policy's metadata; a policy is refused in another embodiment."""
     action_curve: float = 2.0
-    """Action -> commanded speed: max speed x |a|^action_curve along a (``control.diff_ik.shape_action``). With 2,
+    """Action -> commanded speed: max speed x |a|^curve along a. (``control.diff_ik.shape_action``.) With 2,
     placing the box at rest (< 5 cm/s) asks for |a| < 0.17 instead of 0.03, so exploration noise and the actor's
     gradient can find it; full speed is still |a| = 1. Recorded in the policy (policies without it: 1)."""
     object_size: bool = False
-    """Each object slot also carries the object's footprint radius (``env/observation.py``): the catalog's objects
-    span 3-10 cm, and without it the policy cannot tell how wide a berth an object needs. Not the paper's layout;
+    """Each object slot also carries the object's footprint radius: the catalog's objects span 3-10 cm, and without
+    it the policy cannot tell how wide a berth an object needs. Not the paper's observation (``env/observation.py``);
     recorded in the policy (policies without it: no size). Flat MLP only for now."""
     slot_order: str = "nearest"
     """Order of the object slots in the observation: 'nearest' (by distance to the held box, re-sorted every
@@ -55,7 +55,9 @@ class TrainConfig:
     total_env_steps: int = 2_000_000
     """Budget in environment steps (the run stops at whichever budget is reached first)."""
     minutes: float | None = 60.0
-    """Budget in wall-clock minutes; none or 0 means no time limit."""
+    """Budget in wall-clock minutes; 0 means no time limit. (That is the command line's spelling, which
+    ``safemanip train`` turns into None: here, and in a --config file, the limit is off with None / null and 0 is
+    out of range.)"""
     seed: int = 0
     """Seed of everything random in the run: the learner's networks and sampling, the rollout workers' scenes and
     exploration noise."""
@@ -67,14 +69,14 @@ class TrainConfig:
     learning_rate: float = 1e-3
     """AdamW learning rate of the actor and the critics (Table V)."""
     learning_rate_final: float | None = None
-    """If set, both learning rates fall from ``learning_rate`` to this on a cosine over the budget (the same
-    progress measure as gamma's anneal); None keeps Table V's constant rate."""
+    """If set, both learning rates fall to this on a cosine over the budget; unset, they stay constant (Table V).
+    The cosine runs from ``learning_rate`` on the same progress measure as gamma's anneal."""
     buffer_size: int = 100_000
     """Replay buffer capacity in transitions (Table V)."""
     gamma: float = 0.99
-    """Discount factor; with ``gamma_start`` set it is annealed from gamma_start to this value."""
+    """Discount factor; with a starting discount (--gamma-start) it is annealed from that to this value."""
     gamma_start: float | None = None
-    """If set, gamma rises linearly from this value to ``gamma`` over the first half of the budget."""
+    """If set, the discount rises linearly from this value to --gamma over the first half of the budget."""
     polyak: float = 0.995
     """Target networks move by (1 - polyak) towards the trained ones every update (Table V)."""
     hidden: tuple[int, ...] = (256, 256, 256)
@@ -121,7 +123,8 @@ class TrainConfig:
     env_steps_per_update: float = 4.0
     """Target data rate: environment steps collected per learner update (the inverse update-to-data ratio)."""
     n_collectors: int = 1
-    """Rollout worker processes (each simulates ``envs_per_collector`` envs round-robin on one core)."""
+    """Rollout worker processes, each stepping its envs (4 unless a --config file sets envs_per_collector)
+    round-robin on one core."""
     envs_per_collector: int = 4
     """Envs each rollout worker steps round-robin."""
     torch_threads: int = 1
@@ -131,7 +134,7 @@ class TrainConfig:
     """Learner device: 'auto' (CUDA if PyTorch sees a GPU, else CPU), 'cpu' or 'cuda'. Rollouts stay on CPUs."""
     precision: str = "auto"
     """Forward passes in 'bf16' (autocast; fp32 master weights, losses and targets) or 'fp32'; 'auto' takes
-    bf16 only where it is native and measured faster at start-up (rl/precision.py)."""
+    bf16 only where it is native and measured faster at start-up. (``rl/precision.py``.)"""
     network: str = "mlp"
     """'mlp': the paper's flat MLPs over a fixed k; 'set': a shared per-object encoder pooled over the slots
     (order-invariant, absent slots masked), one network for any number of objects."""
@@ -139,16 +142,17 @@ class TrainConfig:
     """Width of the set network's per-object encoder (two ReLU layers)."""
     scene_objects: int | None = None
     """Selection-aware training: objects in each training scene (N >= k); the object selector picks the
-    policy's k slots every ``selection_interval`` steps and the judge covers all N. None: N = k."""
+    policy's k objects every 4 control steps and the judge covers all N. (The interval is ``selection_interval``;
+    None: N = k.)"""
     scene_objects_min: int | None = None
-    """Mixed clutter: each training episode draws N uniformly from ``scene_objects_min`` to ``scene_objects``
-    (or k), so sparse scenes, where the task is learnt quickly, keep teaching the dense ones. Slots a scene
+    """Mixed clutter: each training episode draws N uniformly from this to --scene-objects (or k), so sparse
+    scenes, where the task is learnt quickly, keep teaching the dense ones. Slots a scene
     with N < k cannot fill are padded as at deployment: far-away dummy objects for the flat MLP, absent
     (masked) slots for the set network. None: every scene holds the same N."""
     selector: str = "dynamic-knn"
     """Object selector for selection-aware training: 'dynamic-knn' (k nearest), 'dynamic-radius' (every
-    object within ``selection_radius``, at most k; needs network='set') or 'mixed' (each episode draws one of
-    the two, so one set-network policy works with either at deployment; needs network='set')."""
+    object within --selection-radius, at most k; needs --network set) or 'mixed' (each episode draws one of
+    the two, so one set-network policy works with either at deployment; needs --network set)."""
     selection_radius: float = 0.35
     """dynamic-radius: horizontal distance from the held box's centre [m] within which objects are picked."""
     selection_interval: int = 4
@@ -161,8 +165,8 @@ class TrainConfig:
     """Rollout workers as local processes ('local'), Ray actors ('ray') or in the learner's own process, one chunk at
     a time ('inline': slower, deterministic for a seed); the learner stays in this process."""
     address: str | None = None
-    """Ray cluster address (HOST:PORT or 'auto'); None starts a local Ray instance (or joins RAY_ADDRESS). Only with
-    backend='ray'. Set from the --address flag only: never written to config.json (``to_json``), refused in a
+    """Ray cluster address (HOST:PORT or 'auto') for --backend ray. None starts a local Ray instance (or joins
+    RAY_ADDRESS). Set from the --address flag only: never written to config.json (``to_json``), refused in a
     --config file and dropped from a run's config.json on --resume (``load_run_config``), so that no file can send
     a run, its rollout workers or its policy to a remote cluster."""
     # -- evaluation, logging, checkpoints
@@ -255,7 +259,7 @@ class TrainConfig:
     def rollout_env_kwargs(self) -> dict:
         """The env the rollout workers and the periodic evaluation run: ``env_kwargs``, or with selection-aware
         training the registry's ``slide-out-selected`` env: the full N-object scene seen through the selector
-        (its factory is ``selection.training_env.SelectedSlotsEnv``, registered by that layer)."""
+        (its factory, ``selection.training_env.SelectedSlotsEnv``, is passed to ``rl.train.train`` by its caller)."""
         if not self.selection_aware:
             return self.env_kwargs
         kwargs = {**self.env_kwargs, "env": SELECTED_ENV, "n_objects": self.scene_objects or self.k, "k": self.k,
@@ -296,21 +300,9 @@ class TrainConfig:
         if not isinstance(data, dict):
             raise ConfigError(f"a training config must be a JSON object of TrainConfig fields, got {type(data).__name__}")
         data = dict(data)
-        problems = []
-        # keys older run folders carry: the same meaning under the new name, never an import
-        if "n_objects" in data and "k" not in data:
-            data["k"] = data.pop("n_objects")
-        if "env_factory" in data:
-            factory = data.pop("env_factory")
-            if factory is None:
-                pass
-            elif factory in LEGACY_FACTORIES and "env" not in data:
-                data["env"] = LEGACY_FACTORIES[factory]
-            else:
-                problems.append(f"env_factory {factory!r} is not accepted: a config names its env from the registry "
-                                f"(key 'env'), one of {sorted(ENVS)}; nothing in a config is imported")
+        problems = retired_key_problems(data)
         known = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - known)
+        unknown = sorted(set(data) - known - set(RETIRED_KEYS))
         if unknown:
             problems.append(f"unknown config key(s) {unknown}; known keys: {sorted(known)}")
         if problems:
@@ -325,7 +317,15 @@ class TrainConfig:
         if isinstance(data, dict) and data.get("address") is not None:
             raise ConfigError(f"{path}: a config file may not name a Ray cluster ('address'): the address comes from "
                               f"--address HOST:PORT or the RAY_ADDRESS environment variable only; remove it from the file")
-        return cls.from_dict(data)
+        return _from_file_dict(data, path)
+
+
+def _from_file_dict(data, path: str | Path) -> "TrainConfig":
+    """``TrainConfig.from_dict`` of a file's contents, its refusal naming the file."""
+    try:
+        return TrainConfig.from_dict(data)
+    except ConfigError as err:
+        raise ConfigError(f"{path}: {err}") from None
 
 
 def load_run_config(path: str | Path) -> tuple[TrainConfig, str | None]:
@@ -333,7 +333,7 @@ def load_run_config(path: str | Path) -> tuple[TrainConfig, str | None]:
     recorded by an older version is dropped, not used: the caller says so."""
     data = _read_config(path)
     dropped = data.pop("address", None) if isinstance(data, dict) else None
-    return TrainConfig.from_dict(data), (str(dropped)[:300] if dropped is not None else None)
+    return _from_file_dict(data, path), (str(dropped)[:300] if dropped is not None else None)
 
 
 def _read_config(path: str | Path):
@@ -345,6 +345,33 @@ def _read_config(path: str | Path):
         raise ConfigError(f"cannot read the config {path}: {err.strerror or err}") from err
     except JSONInputError as err:
         raise ConfigError(str(err)) from err
+
+
+RETIRED_KEYS = ("n_objects", "env_factory")
+"""Keys of the training-config format written before 2026-12-01 (``n_objects`` for the slot count k, ``env_factory``
+for the env as a Python class): retired in issue 43, refused by ``TrainConfig.from_dict`` with what to do instead,
+never converted."""
+
+
+def retired_key_problems(data: dict) -> list[str]:
+    """What to do about each retired key in a config (run folder, policy metadata or --config file)."""
+    problems = []
+    if "n_objects" in data:
+        problems.append("key 'n_objects' is not a training setting: the policy's object slots are 'k' and a larger "
+                        "training scene is 'scene_objects'. A run folder or policy that stores the slot count as "
+                        "'n_objects' was written before 2026-12-01, a format retired in issue 43: re-train it "
+                        "(safemanip train --k K ...); in a config file of your own, drop it and use those two keys")
+    if "env_factory" in data:
+        problems.append(f"env_factory {_brief(data['env_factory'])} is not accepted: naming an env by its Python "
+                        f"class is the format of run folders written before 2026-12-01, retired in issue 43, and "
+                        f"nothing in a config is imported. Name the env with 'env', one of {sorted(ENVS)} (default "
+                        f"{DEFAULT_ENV!r}), and re-train a run folder that has the old key")
+    return problems
+
+
+def _brief(value, limit: int = 80) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 NOT_RECORDED = ("address",)
