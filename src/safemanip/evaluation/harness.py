@@ -121,7 +121,7 @@ class EvalRequest:
     """Episodes per worker task (default: about 8 tasks per worker)."""
     soft_reach: float | None = None
     """Semantic and privileged-criticality selection: a soft object within this distance of the held box [m] ranks
-    with the fragile ones (default 0: soft objects rank after the fragile ones). The rule is
+    with the fragile ones (default 10 m: every soft object does). The rule is
     ``selection.selectors.criticality_first``; None means its ``DEFAULT_SOFT_REACH``."""
     shield: str | None = None
     """A safety filter around the policy: 'brake' overrides an action after which the held box could not stop short
