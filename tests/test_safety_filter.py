@@ -137,3 +137,43 @@ def test_eval_refuses_an_unknown_filter_and_a_filter_around_the_planner():
         prepare(EvalRequest(policy=None, planner="all", n_objects=2, shield="brake", episodes=1))
     prep = prepare(EvalRequest(policy="rarl-k2-conservative-s0", shield="brake", episodes=1))
     assert prep.spec.shield == "brake"
+
+
+def test_rectangle_distances_match_their_sampled_boundaries():
+    """The oriented-rectangle footprints: apart, the distance equals the least distance between densely sampled edges;
+    overlapping, it is negative."""
+    from safemanip.safety.braking import _corners, _rect_distances
+
+    def edge_points(c, yaw, half):
+        corners = _corners(np.asarray(c), yaw, np.asarray(half))
+        t = np.linspace(0.0, 1.0, 200)[:, None]  # at most 1.5 mm apart
+        return np.concatenate([corners[i] + t * (corners[(i + 1) % 4] - corners[i]) for i in range(4)])
+
+    rng = np.random.default_rng(3)
+    apart = overlapping = 0
+    for _ in range(120):
+        c1, c2 = rng.uniform(-0.3, 0.3, (2, 2))
+        y1, y2 = rng.uniform(-np.pi, np.pi, 2)
+        h1, h2 = rng.uniform(0.01, 0.15, (2, 2))
+        d = float(_rect_distances(c1, y1, h1, c2[None], np.array([y2]), h2[None])[0])
+        a, b = edge_points(c1, y1, h1), edge_points(c2, y2, h2)
+        sampled = float(np.min(np.linalg.norm(a[:, None] - b[None], axis=-1)))
+        if sampled < 1e-3 or d < 0:  # touching or overlapping (then the sampled edges cross or nest)
+            overlapping += d <= 1e-9
+            continue
+        apart += 1
+        assert abs(d - sampled) < 2e-3, (d, sampled)
+    assert apart > 30 and overlapping > 10
+
+
+def test_a_footprint_rectangle_holds_the_object_and_beats_the_circle_on_long_objects():
+    """``footprint_rect`` contains every part's box; on a long object it is far tighter than the radius sideways."""
+    from safemanip.scene.catalog import _part_corners, load_catalog
+
+    for obj in load_catalog().values():
+        cx, cy, hx, hy = obj.footprint_rect
+        for part in obj.parts:
+            xy = _part_corners(part)[:, :2]
+            assert (np.abs(xy - (cx, cy)) <= np.array([hx, hy]) + 1e-9).all(), obj.name
+    phone = load_catalog()["smartphone"]
+    assert min(phone.footprint_rect[2:]) < phone.footprint_radius - 0.04

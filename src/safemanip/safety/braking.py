@@ -28,11 +28,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Sequence
 
 import numpy as np
 
 from safemanip.control.diff_ik import MAX_EE_ACCEL, MAX_EE_SPEED, limit_ee_velocity, shape_action
+from safemanip.env.margins import margin_out_from_under
+from safemanip.scene.catalog import load_catalog
 from safemanip.scene.builder import CONTROL_DT
 
 BRAKE = np.zeros(3, dtype=np.float32)
@@ -40,6 +43,10 @@ BRAKE = np.zeros(3, dtype=np.float32)
 SLOWER = (0.7, 0.5, 0.35, 0.25)
 """Before braking, the filter tries the policy's action scaled by these (its direction kept, its speed lower; with
 the action curve the speed falls faster than the scale): the least change that is safe."""
+TURNS = (15.0, 30.0, 45.0, 60.0, 90.0)
+"""Then the policy's horizontal action turned by these angles [deg] to either side (at full and half its speed): a
+way around an object the policy heads straight for, where sliding past it leaves nothing and the brake would hold
+the box there for good (a deterministic policy asks the same again)."""
 
 
 @dataclass
@@ -77,6 +84,8 @@ class BrakingShield:
     """Spacing [m] of the footprints along the swept path."""
     name: str = "brake"
     stats: ShieldStats = field(default_factory=ShieldStats)
+    _side: float = 1.0
+    """The side (+1 left, -1 right) the filter last turned an action to."""
 
     def filter(self, env, action: np.ndarray, constraints: Sequence[str]) -> np.ndarray:
         """The action to apply: ``action`` if the box can still stop in time after it, else the least change of it that
@@ -86,13 +95,17 @@ class BrakingShield:
         if not guarded:
             return action
         state = env.scene_state()
+        rects = _footprint_rects(tuple(env.names[i] for i in guarded))
+        bodies = np.asarray(env.index.object_bodies)[guarded]
         scene = _Scene(box=np.asarray(state.bottom_pos[:2], dtype=float),
                        yaw=_yaw(env.data.xquat[env.index.bottom_box_body]),
                        half=np.asarray(env.geometry.box_half_extents[:2], dtype=float),
                        centres=np.asarray(state.obj_pos, dtype=float)[guarded, :2],
                        radii=np.asarray(state.obj_radius, dtype=float)[guarded],
-                       soft=np.array([constraints[i] == "soft_contact" for i in guarded]))
-        scene.now = _clearances(scene.box, scene.yaw, scene.half, scene.centres, scene.radii)
+                       soft=np.array([constraints[i] == "soft_contact" for i in guarded]),
+                       obj_yaw=np.array([_yaw(q) for q in env.data.xquat[bodies]]),
+                       rect_offset=rects[:, :2], rect_half=rects[:, 2:])
+        scene.now = _clearances(scene, scene.box)
         velocity = np.asarray(state.bottom_vel[:2], dtype=float)
         command = np.asarray(env._command[:2], dtype=float)
         if self._safe(scene, velocity, command, self._commanded(env, action)):
@@ -106,6 +119,16 @@ class BrakingShield:
                 slower = (candidate * scale).astype(np.float32)
                 if self._safe(scene, velocity, command, self._commanded(env, slower)):
                     return slower
+        # a turn only once the held box is out from under the top box: turned mid-pull, the box drags the top box
+        # sideways (seen on the development block); slowing or braking there is the task policy's risk, not added
+        free = margin_out_from_under(state.bottom_pos[:2], state.top_pos[:2], scene.half, scene.half, 0.0) > 0.0  # same boxes
+        for degrees in TURNS if free else ():
+            for side in (self._side, -self._side):  # the side it turned last first: no zig-zag
+                for scale in (1.0, 0.5):
+                    turned = (_turned(action, side * math.radians(degrees)) * scale).astype(np.float32)
+                    if self._safe(scene, velocity, command, self._commanded(env, turned)):
+                        self._side = side
+                        return turned
         if not self._safe(scene, velocity, command, _braking(command)):
             self.stats.unavoidable += 1
         return BRAKE.copy()
@@ -170,6 +193,10 @@ class _Scene:
     centres: np.ndarray
     radii: np.ndarray
     soft: np.ndarray
+    obj_yaw: np.ndarray
+    """(N,) each object's yaw, with ``rect_offset`` (N, 2) and ``rect_half`` (N, 2): its footprint rectangle."""
+    rect_offset: np.ndarray
+    rect_half: np.ndarray
     now: np.ndarray | None = None
 
 
@@ -187,6 +214,14 @@ def _sliding(action: np.ndarray, scene: _Scene) -> np.ndarray:
     return out
 
 
+def _turned(action: np.ndarray, angle: float) -> np.ndarray:
+    """``action`` with its horizontal part turned by ``angle`` [rad] (counter-clockwise seen from above)."""
+    c, s = math.cos(angle), math.sin(angle)
+    out = action.copy()
+    out[0], out[1] = c * action[0] - s * action[1], s * action[0] + c * action[1]
+    return out
+
+
 def _braking(command: np.ndarray) -> np.ndarray:
     """The command after one braking step (toward rest at the Cartesian limit)."""
     speed = float(np.hypot(*command))
@@ -200,7 +235,29 @@ def _yaw(quat: np.ndarray) -> float:
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
-def _clearances(box, yaw, half, centres, radii) -> np.ndarray:
+@lru_cache(maxsize=256)
+def _footprint_rects(names: tuple[str, ...]) -> np.ndarray:
+    """(N, 4) each object's footprint rectangle in its own frame: centre offset x, y, half x, half y (the catalog's
+    ``footprint_rect``, what an oriented bounding box from perception gives)."""
+    catalog = load_catalog()
+    return np.array([catalog[n].footprint_rect for n in names], dtype=float).reshape(-1, 4)
+
+
+def _clearances(scene: "_Scene", box) -> np.ndarray:
+    """Distance [m] from the box's footprint rectangle, centred at ``box`` ((2,) or (S, 2) positions), to each object
+    (negative: overlapping), (N,) or (S, N). An object lies inside both its footprint circle and its oriented
+    footprint rectangle, so the larger of the two distances is still never more than the distance to the object:
+    the circle is the tighter bound for round objects, the rectangle for long ones."""
+    box = np.asarray(box, dtype=float)
+    circle = _circle_clearances(box, scene.yaw, scene.half, scene.centres, scene.radii)
+    c, s = np.cos(scene.obj_yaw), np.sin(scene.obj_yaw)
+    rect_centres = scene.centres + np.stack((c * scene.rect_offset[:, 0] - s * scene.rect_offset[:, 1],
+                                             s * scene.rect_offset[:, 0] + c * scene.rect_offset[:, 1]), axis=-1)
+    rect = _rect_distances(box, scene.yaw, scene.half, rect_centres, scene.obj_yaw, scene.rect_half)
+    return np.maximum(circle, rect)
+
+
+def _circle_clearances(box, yaw, half, centres, radii) -> np.ndarray:
     """Distance [m] from each object's footprint circle to the box's footprint rectangle (negative: overlapping);
     ``box`` may also be (S, 2) positions, giving (S, N)."""
     c, s = math.cos(yaw), math.sin(yaw)
@@ -211,12 +268,51 @@ def _clearances(box, yaw, half, centres, radii) -> np.ndarray:
     return outside + inside - radii
 
 
+_SIGNS = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])  # corners in order around the rectangle
+
+
+def _corners(centres: np.ndarray, yaw, half: np.ndarray) -> np.ndarray:
+    """(..., 4, 2) corners of rectangles with these centres (..., 2), yaws and half sizes."""
+    yaw = np.asarray(yaw, dtype=float)
+    c, s = np.cos(yaw)[..., None], np.sin(yaw)[..., None]
+    local = _SIGNS * np.asarray(half)[..., None, :]
+    return centres[..., None, :] + np.stack((c * local[..., 0] - s * local[..., 1],
+                                             s * local[..., 0] + c * local[..., 1]), axis=-1)
+
+
+def _rect_distances(box: np.ndarray, yaw: float, half: np.ndarray, centres: np.ndarray, yaws: np.ndarray,
+                    halves: np.ndarray) -> np.ndarray:
+    """Distance between the box's rectangle at ``box`` ((2,) or (S, 2)) and each object rectangle (N), (N,) or (S, N):
+    the least corner-to-edge distance either way when apart; minus the least overlap along the four edge normals
+    (the separating-axis test) when they overlap."""
+    a = _corners(np.asarray(box, dtype=float), yaw, half)[..., None, :, :]  # (S, 1, 4, 2)
+    b = _corners(centres, yaws, halves)  # (N, 4, 2)
+    b = np.broadcast_to(b, a.shape[:-3] + b.shape)
+    a = np.broadcast_to(a, b.shape)
+    gap = np.minimum(_corner_edge(a, b), _corner_edge(b, a))
+    overlap = np.full(gap.shape, np.inf)
+    for poly in (a, b):
+        for edge in (poly[..., 1, :] - poly[..., 0, :], poly[..., 3, :] - poly[..., 0, :]):
+            axis = edge / np.linalg.norm(edge, axis=-1, keepdims=True)
+            pa, pb = (np.einsum("...kd,...d->...k", p, axis) for p in (a, b))
+            overlap = np.minimum(overlap, np.minimum(pa.max(-1), pb.max(-1)) - np.maximum(pa.min(-1), pb.min(-1)))
+    return np.where(overlap > 0.0, -overlap, gap)
+
+
+def _corner_edge(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Least distance from the corners of rectangles ``p`` (..., 4, 2) to the edges of rectangles ``q``."""
+    start, end = q, np.roll(q, -1, axis=-2)  # (..., 4, 2) edges
+    d = (end - start)[..., None, :, :]  # (..., 1, 4 edges, 2)
+    rel = p[..., :, None, :] - start[..., None, :, :]  # (..., 4 corners, 4 edges, 2)
+    t = np.clip((rel * d).sum(-1) / (d * d).sum(-1), 0.0, 1.0)
+    return np.linalg.norm(rel - t[..., None] * d, axis=-1).min(axis=(-2, -1))
+
+
 def _swept_clearances(scene: _Scene, direction, distance, resolution) -> tuple[np.ndarray, np.ndarray]:
     """Each object's least clearance from the box's footprint swept ``distance`` along ``direction`` (from the first
     sample ahead on), sampled every ``resolution`` (between samples it can be lower by at most half the spacing, which
     is subtracted), and whether the sweep brings the box any closer to it than it is now."""
     samples = max(int(math.ceil(distance / resolution)), 1)
     steps = np.linspace(0.0, distance, samples + 1)[1:]
-    ahead = _clearances(scene.box + steps[:, None] * direction, scene.yaw, scene.half, scene.centres,
-                        scene.radii).min(axis=0)
+    ahead = _clearances(scene, scene.box + steps[:, None] * direction).min(axis=0)
     return ahead - 0.5 * distance / samples, ahead < scene.now - 1e-4

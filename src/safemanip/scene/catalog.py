@@ -10,6 +10,9 @@ from dataclasses import dataclass
 from functools import lru_cache
 from importlib import resources
 
+import mujoco
+import numpy as np
+
 SEMANTIC_CLASSES = ("fragile", "soft", "durable")
 CONSTRAINT_TYPES = ("no_contact", "soft_contact", "any_contact")
 CONSTRAINT_OF_CLASS = {"fragile": "no_contact", "soft": "soft_contact", "durable": "any_contact"}
@@ -49,6 +52,17 @@ class CatalogObject:
         return radius
 
     @property
+    def footprint_rect(self) -> tuple[float, float, float, float]:
+        """The rectangle, in the object's own frame, that contains every part seen from above: (centre x, centre y,
+        half x, half y) [m], what a perception system's oriented bounding box reports. Each part is bounded by the box
+        around it (a cylinder by its square), posed with its euler angles; the object is inside this rectangle and
+        inside the ``footprint_radius`` circle, so a distance to either is never more than the distance to it."""
+        corners = np.concatenate([_part_corners(part) for part in self.parts])
+        lo, hi = corners[:, :2].min(axis=0), corners[:, :2].max(axis=0)
+        centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+        return float(centre[0]), float(centre[1]), float(half[0]), float(half[1])
+
+    @property
     def height(self) -> float:
         return max(p.pos[2] + _part_vertical_reach(p) for p in self.parts)
 
@@ -60,6 +74,24 @@ def _part_horizontal_reach(part: Part) -> float:
     if part.type in ("cylinder", "capsule"):
         return s[0] + (s[1] if any(part.euler) else 0.0)
     return s[0]
+
+
+def _part_corners(part: Part) -> np.ndarray:
+    """The 8 corners (8, 3) of the box around ``part`` in the object's frame: its half sizes (a cylinder's radius,
+    radius, half length; a capsule's half length plus its caps), turned by its euler angles (MuJoCo's default
+    intrinsic x-y-z sequence, as the scene builder passes them) and moved to its position."""
+    s = part.size
+    if part.type == "box":
+        half = s
+    elif part.type == "sphere":
+        half = (s[0], s[0], s[0])
+    else:  # cylinder, capsule (its caps add a radius to each end)
+        half = (s[0], s[0], s[1] + (s[0] if part.type == "capsule" else 0.0))
+    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
+    quat, rot = np.zeros(4), np.zeros(9)
+    mujoco.mju_euler2Quat(quat, np.asarray(part.euler, dtype=float), "xyz")
+    mujoco.mju_quat2Mat(rot, quat)
+    return (signs * np.asarray(half, dtype=float)) @ rot.reshape(3, 3).T + np.asarray(part.pos, dtype=float)
 
 
 def _part_vertical_reach(part: Part) -> float:
