@@ -7,7 +7,8 @@ layer above its own, and no two of its packages import each other. Layers, botto
   3  rl, selection, safety         the learner, the selectors/reducer, the braking filter
   4  semantics, toy (oracle)       semantic backends and selectors; the learner's exact test oracle
   5  evaluation                    episodes judged on the full scene, the selector registry, sweeps
-  6  demo, cli                     what a person runs
+  6  bench                         the paper's benchmark: its runs, their promotion, the verdicts and findings
+  7  demo, cli                     what a person runs
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import safemanip
 
 ROOT = Path(safemanip.__file__).parent
 LAYERS = {"util": 0, "scene": 0, "control": 1, "env": 2, "toy.system": 2, "rl": 3, "selection": 3, "safety": 3,
-          "semantics": 4, "toy": 4, "evaluation": 5, "demo": 6, "cli": 6}
+          "semantics": 4, "toy": 4, "evaluation": 5, "bench": 6, "demo": 7, "cli": 7}
 
 
 def package_of(module: str) -> str | None:
@@ -85,6 +86,7 @@ def test_the_checker_sees_an_upward_import(tmp_path):
     assert layer_of("safemanip.evaluation.harness") > layer_of("safemanip.rl.train")
     assert layer_of("safemanip.toy.system") < layer_of("safemanip.rl.envs") < layer_of("safemanip.toy.oracle")
     assert layer_of("safemanip.scene.panda") < layer_of("safemanip.control.planner") < layer_of("safemanip.env.sampling")
+    assert layer_of("safemanip.evaluation.sweep") < layer_of("safemanip.bench.train") < layer_of("safemanip.cli.bench")
 
 
 def package_imports() -> dict[str, set[str]]:

@@ -67,7 +67,7 @@ def test_resume_skips_stored_cells_and_reports_missing_policies(tmp_path):
     assert status["done"] == [static.id]
     assert len(status["ran"]) == 1 and "dynamic-knn" in status["ran"][0]
     assert len(status["skipped"]) == 2  # both selectors for the k=3 policy
-    assert "safemanip train --algorithm rarl --k 3 --constraints all" in status["skipped"][0]["train"]
+    assert status["skipped"][0]["train"] == "safemanip bench train --only rarl-k3-all && safemanip bench promote"
     assert any("skipped, no policy file" in line for line in logs)
     # the stored cell was not touched; the new one has its records next to it
     assert json.loads((out / "cells" / f"{static.id}.json").read_text()) == stored
@@ -130,24 +130,20 @@ def test_cells_that_query_the_semantic_backend_go_stale_with_its_version(tmp_pat
     assert not _done(path, vlm_cell)
 
 
-def test_printed_train_command_reproduces_the_shipped_recipe():
-    """A skipped cell's command, parsed by ``safemanip train``, gives the shipped π_2's training config (bar k, the
-    seed, the run folder and the bookkeeping fields), so a missing policy is trained alike."""
+def test_printed_train_commands_parse_and_name_the_benchmark_run():
+    """A skipped cell's commands, parsed by ``safemanip``, train exactly that cell's run of the benchmark and bring it
+    in; the recipe they train with is benchmark.json's (``test_bench``: it gives every shipped policy's config)."""
     import shlex
 
+    from safemanip.bench.benchmark import load_benchmark
     from safemanip.cli import build_parser
-    from safemanip.cli.train import FLAGS
-    from safemanip.rl.config import TrainConfig
-    from safemanip.rl.checkpoint import load_policy
 
-    cell = next(c for c in cells_of(load_config("fig5")) if c.k == 3 and c.variant == "" and c.train_seed == 1)
-    command = cell.train_command().split(" && ")[0]
-    args = build_parser().parse_args(shlex.split(command)[1:])
-    given = {field: getattr(args, field) for field in FLAGS.values() if getattr(args, field) is not None}
-    printed = json.loads(json.dumps(TrainConfig.from_dict(given).__dict__))  # as stored: tuples become lists
-    shipped = load_policy("rarl-k2-conservative-s0")[1]["train_config"]
-    differ = {f for f in printed if f in shipped and printed[f] != shipped[f]}
-    assert differ == {"k", "seed", "out_dir"}, differ
+    cell = next(c for c in cells_of(load_config("fig5")) if c.k == 3 and c.variant == "selaware" and c.train_seed == 1)
+    train, promote = (shlex.split(part)[1:] for part in cell.train_command().split(" && "))
+    args = build_parser().parse_args(train)
+    assert args.command == "bench train" and [r.name for r in load_benchmark().select(args.only)] == \
+        ["rarl-k3-conservative-selaware-s1"]
+    assert build_parser().parse_args(promote).command == "bench promote"
 
 
 def test_a_missing_policy_in_another_folder_is_skipped_not_replaced_by_the_shipped_one(tmp_path, monkeypatch):

@@ -2,10 +2,10 @@
 
 Sub-commands are registered by the modules of this package: ``train`` (``cli/train.py``), ``eval`` and
 ``sweep`` (``cli/evaluate.py``), ``classify-constraints``, ``constraint-matrix`` and ``render-query``
-(``cli/semantics.py``), ``demo`` and ``catalog`` (``cli/demo.py``). Expected failures (a bad flag,
-config, file or server) are one line on stderr and exit code 2 (credentials redacted); a worker process that
-died ends the run with one line and exit code 1 after saving what was finished; SIGINT/SIGTERM end a command
-with 128 + the signal number after saving what was finished.
+(``cli/semantics.py``), ``demo`` and ``catalog`` (``cli/demo.py``), and ``bench`` with its own sub-commands
+(``cli/bench.py``). Expected failures (a bad flag, config, file or server) are one line on stderr and exit code 2
+(credentials redacted); a worker process that died ends the run with one line and exit code 1 after saving what was
+finished; SIGINT/SIGTERM end a command with 128 + the signal number after saving what was finished.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ DESCRIPTION = ("Safe robot manipulation in clutter with task-relevant reach-avoi
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from safemanip.cli import demo, evaluate, semantics, train
+    from safemanip.cli import bench, demo, evaluate, semantics, train
 
     parser = Parser(prog="safemanip", description=DESCRIPTION)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -38,6 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     train.register(sub)
     evaluate.register(sub)
     semantics.register(sub)
+    bench.register(sub)
     return parser
 
 

@@ -57,7 +57,7 @@ def seed_bootstrap_interval(counts, totals, *, level: float = 0.95, draws: int =
     the pooled interval understates the uncertainty about the *method*. When the seeds agree this interval is close
     to the pooled one; when they disagree it widens to about their range. With three seeds it is still optimistic
     (a percentile bootstrap over 3 clusters sees only 10 distinct seed sets and underestimates their variance), which
-    is why ``results/findings.py`` keeps a seed-rank test beside it.
+    is why ``bench/verdict.py`` keeps a seed-rank test beside it.
 
     ``counts[i]`` successes out of ``totals[i]`` episodes for training seed i."""
     import numpy as np

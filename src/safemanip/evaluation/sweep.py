@@ -22,14 +22,16 @@ too)::
                                                reference, not an upper bound: a learned policy can beat it)
    "table": {"rows": ["k"], "columns": ["n_objects", "selector"]}}
 
-``seed`` is the episode seed block (block B = seeds B x 100,000 + i). The shipped sweeps report on blocks
-31, 32, 43 and 44, blocks reserved for reported results: no checkpoint, hyper-parameter or classifier is ever chosen on
-them (a run's final or best policy is chosen on block 30, ``results/training/promote.py``).
+``seed`` is the episode seed block (block B = seeds B x 100,000 + i). The shipped sweeps report on blocks reserved
+for reported results (the benchmark's reporting blocks, ``bench/benchmark.json``, which checks that they agree with
+these specs): no checkpoint, hyper-parameter or classifier is ever chosen on them (a run's final or best policy is
+chosen on the benchmark's selection block, ``safemanip bench promote``).
 
 Policy files are named ``{algorithm}-k{k}-{constraints}[-selaware][-s{seed}].safetensors``, so a cell knows its
 k, how its policy was trained and its training seed before the file exists; the table and the figures pool the
 training seeds of one method (``pool_seeds``). Cells with k > N are not applicable and left out; a cell whose
-policy file is missing is reported as skipped, with the command that trains it.
+policy file is missing is reported as skipped, with the commands that train and bring in a benchmark policy of that
+name.
 
 Layout of the output folder (default ``results/FOLDER``, the spec's ``folder``, else ``results/NAME``)::
 
@@ -65,14 +67,6 @@ SCENE_KEYS = {"layout": str, "gate_share": float, "exit_share": float}
 """What a sweep's ``scenes`` may set: the layout and the shares of gate and exit scenes (``scene.config.SceneConfig``)."""
 FIGURES = ("fig4", "fig5", "fig6", "table")
 DEFAULT_ROOT = Path("results")
-RECIPE = ("--object-size --action-curve 2 --gamma 0.98 --gamma-start 0.9 --learning-rate-final 1e-4 "
-          "--actor-preactivation-penalty 1e-3 --precision bf16 --total-env-steps 400000 --minutes 240")
-"""Flags every benchmark policy was trained with (``results/training/train.sh``; each file's metadata holds its full
-config): the same budget of 400k environment steps (100k updates) for every method. The shipped file is whichever
-of the run's final policy and its ``best.safetensors`` scored higher on seed block 30."""
-TRAINING_LAYOUT = {"conservative": "exit", "all": "gate"}
-"""The layout each kind of benchmark policy trains on: conservative ones meet open and exit scenes, 'all' ones open
-and gate scenes."""
 
 
 class SweepError(ValueError):
@@ -118,13 +112,10 @@ class Cell:
         return re.sub(r"-s\d+$", "", Path(self.policy).stem)
 
     def train_command(self) -> str:
-        """The command that trains this cell's policy as the benchmark's were (``RECIPE``), then brings it in."""
-        name = Path(self.policy).stem
-        selaware = (f" --scene-objects 6 --scene-objects-min {self.k} --selector dynamic-knn"
-                    if self.variant == "selaware" else "")
-        return (f"safemanip train --algorithm {self.algorithm} --k {self.k} --constraints {self.policy_constraints} "
-                f"--layout {TRAINING_LAYOUT[self.policy_constraints]}{selaware} {RECIPE} --seed {self.train_seed or 0} "
-                f"--out runs/bench/{name} && python results/training/promote.py runs/bench")
+        """The commands that train this cell's policy as the benchmark's were and bring it in. The recipe, the budget
+        and every setting's flags live in one place, ``bench/benchmark.json``; a name the benchmark does not list is
+        refused by ``bench train --only`` with the names it does."""
+        return f"safemanip bench train --only {Path(self.policy).stem} && safemanip bench promote"
 
 
 # ------------------------------------------------------------------------------------------ configs
@@ -684,7 +675,7 @@ def _pooled_entry(entries: list[dict], counts: list[int], totals: list[int]) -> 
     """Rate entries of one method's training seeds as one: the mean rate, the Wilson interval of all their episodes
     together (``ci95``), the 95 % interval with training seeds as the unit (``ci95_seeds``: a two-stage cluster
     bootstrap, ``stats.seed_bootstrap_interval``), the lowest and highest seed (``spread``) and each seed's count
-    and episodes (``seed_counts``, ``seed_totals``: what ``results/findings.py`` bootstraps a difference from). The
+    and episodes (``seed_counts``, ``seed_totals``: what ``bench/verdict.py`` bootstraps a difference from). The
     pooled interval treats 3 x 1000 episodes as independent and understates the uncertainty when seeds disagree."""
     from safemanip.evaluation.stats import seed_bootstrap_interval, wilson_interval
 

@@ -273,7 +273,18 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
     address, source = ray_address(address)
     if address:
         check_ray_address(address, source)
-        ray.init(address=address, **kwargs)
+        try:
+            ray.init(address=address, **kwargs)
+        except ConnectionError as err:  # the cluster answers but refuses this driver: say why, not a traceback
+            cause = err.__cause__ if err.__cause__ is not None else err
+            if "auth" in type(cause).__name__.lower() or "token" in str(cause).lower():
+                raise ClusterUnreachable(
+                    f"{source} {address}: the Ray cluster refused this connection: it uses token authentication (the "
+                    f"default of `ray start` in recent Ray versions). Run this command with the cluster's "
+                    f"RAY_AUTH_MODE=token and its token in RAY_AUTH_TOKEN (or ~/.ray/auth_token)") from None
+            raise ClusterUnreachable(f"{source} {address}: cannot join the Ray cluster there "
+                                     f"({(str(cause).splitlines() or [''])[0][:200]}); check `ray status` on its "
+                                     f"head node") from None
         return
     if _REAPER is None or _REAPER.poll() is not None:  # first: a kill during ray.init leaves nothing either
         from safemanip.util.reaper import start_reaper
