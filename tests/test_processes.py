@@ -376,13 +376,10 @@ def test_sigterm_to_train_saves_a_checkpoint_and_the_policy(tmp_path):
 
 
 # ------------------------------------------------------------------------------------------ resume integrity
-class _Replay:
-    def save(self, path):
-        Path(path).write_bytes(b"replay")
-
-
 def _checkpoint(run: Path, updates: int) -> None:
-    write_checkpoint(run, {"w": torch.full((2,), float(updates))}, _Replay(),
+    from safemanip.rl.buffer import ReplayBuffer
+
+    write_checkpoint(run, {"w": torch.full((2,), float(updates))}, ReplayBuffer(4, 2, 1),
                      {"updates": updates, "env_steps": 10 * updates, "elapsed_s": 1.0})
 
 

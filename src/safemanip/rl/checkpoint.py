@@ -1,10 +1,14 @@
 """Checkpoints and policy files: safetensors for tensors, JSON for everything else, written atomically.
 
 A checkpoint is a folder ``checkpoint/`` holding ``state.safetensors`` (networks, targets, optimiser
-moments), ``replay.npz`` and ``meta.json`` (config and counters). It is written as
-``checkpoint.new/`` and swapped in with renames, so a run killed at any moment leaves the old or the
-new checkpoint whole; ``recover_checkpoint`` resumes from the newest complete one. Nothing is ever
-unpickled, and every .safetensors file is checked (``check_safetensors``) before it is loaded.
+moments), ``replay.npz`` (the replay buffer's index: its counters and the chunk files that hold its transitions)
+and ``meta.json`` (config and counters). The transitions themselves are in ``replay/chunk-*.safetensors`` beside
+it, appended to: each checkpoint writes only those added since the one before (``rl/buffer.py``). A chunk is
+written under a temporary name and renamed, then the checkpoint is written as ``checkpoint.new/`` and swapped in
+with renames, so a run killed at any moment leaves the old or the new checkpoint whole, with every chunk it lists;
+``recover_checkpoint`` resumes from the newest complete one, and chunks no checkpoint lists are never read.
+``CheckpointWriter`` does the writing on a thread of its own, off the learner's path. Nothing is ever unpickled,
+and every .safetensors file is checked (``check_safetensors``) before it is loaded.
 """
 
 from __future__ import annotations
@@ -14,6 +18,7 @@ import math
 import os
 import shutil
 import struct
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -29,18 +34,32 @@ POLICY_FORMAT = "safemanip-policy/1"
 CHECKPOINT_NAMES = ("checkpoint.new", "checkpoint", "checkpoint.old")
 
 
+REPLAY_DIR = "replay"
+"""The run folder's folder of replay chunks (``rl/buffer.py``), shared by its checkpoints."""
+
+
 def write_checkpoint(run_dir: Path, tensors: dict, replay, meta: dict) -> Path:
-    """Write ``checkpoint.new/`` (meta.json last: its presence marks the folder complete), then swap it in:
-    checkpoint -> checkpoint.old, checkpoint.new -> checkpoint. ``recover_checkpoint`` finishes an
-    interrupted swap, whichever rename it stopped between."""
+    """Write a checkpoint of ``replay`` (a ``ReplayBuffer``) now, in this thread (``CheckpointWriter``: on another)."""
+    return _write_checkpoint(Path(run_dir), tensors, replay.take_unsaved(), replay.index(), meta)
+
+
+def _write_checkpoint(run_dir: Path, tensors: dict, chunk, index: dict, meta: dict) -> Path:
+    """The new chunk (``take_unsaved``) first; then ``checkpoint.new/`` (meta.json last: its presence marks the
+    folder complete), swapped in: checkpoint -> checkpoint.old, checkpoint.new -> checkpoint
+    (``recover_checkpoint`` finishes an interrupted swap, whichever rename it stopped between); then the chunks the
+    new checkpoint no longer lists go. Every complete checkpoint on disk therefore finds each chunk it lists."""
     from safetensors.torch import save_file
 
-    run_dir = Path(run_dir)
+    from safemanip.rl.buffer import remove_unlisted_chunks, write_chunk
+
+    chunks = run_dir / REPLAY_DIR
+    if chunk is not None:
+        write_chunk(chunks, *chunk)
     new, cur, old = (run_dir / n for n in ("checkpoint.new", "checkpoint", "checkpoint.old"))
     shutil.rmtree(new, ignore_errors=True)
     new.mkdir(parents=True)
     save_file(tensors, new / "state.safetensors")
-    replay.save(new / "replay.npz")
+    np.savez(new / "replay.npz", **index)
     atomic_write_text(new / "meta.json", json.dumps(meta, indent=1))
     _fsync_dir(new)
     shutil.rmtree(old, ignore_errors=True)
@@ -48,7 +67,39 @@ def write_checkpoint(run_dir: Path, tensors: dict, replay, meta: dict) -> Path:
         os.replace(cur, old)
     os.replace(new, cur)
     shutil.rmtree(old, ignore_errors=True)
+    remove_unlisted_chunks(chunks, list(zip(index["chunk_first"].tolist(), index["chunk_count"].tolist())))
     return cur
+
+
+class CheckpointWriter:
+    """Checkpoints written on a thread of its own, one at a time. ``submit`` takes, in the caller's thread, what
+    the checkpoint holds (the tensors as given, which ``Learner.state_tensors`` has copied, and the transitions
+    added since the last checkpoint) and returns; the files are written beside training. ``wait`` waits for the
+    write in flight and raises what it failed with (a failed write also fails the next ``submit``)."""
+
+    def __init__(self) -> None:
+        self.thread: threading.Thread | None = None
+        self.error: BaseException | None = None
+
+    def submit(self, run_dir: Path, tensors: dict, replay, meta: dict) -> None:
+        self.wait()
+        args = (Path(run_dir), tensors, replay.take_unsaved(), replay.index(), meta)
+        self.thread = threading.Thread(target=self._write, args=args, name="checkpoint-writer", daemon=True)
+        self.thread.start()
+
+    def _write(self, *args) -> None:
+        try:
+            _write_checkpoint(*args)
+        except BaseException as err:  # noqa: BLE001 - handed to the training loop's thread by ``wait``
+            self.error = err
+
+    def wait(self) -> None:
+        if self.thread is not None:
+            self.thread.join()
+            self.thread = None
+        if self.error is not None:
+            error, self.error = self.error, None
+            raise error
 
 
 def _complete_meta(path: Path) -> dict | None:
@@ -86,6 +137,8 @@ def read_checkpoint_meta(path: Path) -> dict:
         wrong.append("best")
     if "config" in meta and not isinstance(meta["config"], dict):
         wrong.append("config")
+    if "evals" in meta and (not _is_int(meta["evals"]) or meta["evals"] < 0):
+        wrong.append("evals")
     if wrong:
         raise CheckpointError(f"{where} is damaged: {', '.join(wrong)} missing or of the wrong type")
     return meta
@@ -349,7 +402,7 @@ def retired_meta_format(meta: dict) -> str | None:
         return None
     return (f"this policy file's metadata is the format written before 2026-12-01 ({', '.join(old)}), retired in "
             f"issue 43 and no longer read; re-train the policy with safemanip train (a benchmark policy: re-train "
-            f"its run and re-promote it with results/training/promote.py)")
+            f"its run and re-promote it with safemanip bench promote)")
 
 
 def _checked_set_arrays(path: Path, tensors: dict[str, np.ndarray], meta: dict) -> dict[str, np.ndarray]:

@@ -1,5 +1,6 @@
 """The training loop: rollout workers fill the replay buffer, the learner updates, and the run is
-evaluated, logged and checkpointed as it goes. Reads top to bottom."""
+evaluated, logged and checkpointed as it goes, the evaluations and the checkpoint writes beside the learner
+(``rl/rollout.py``'s evaluation process, ``rl/checkpoint.py``'s writer thread). Reads top to bottom."""
 
 from __future__ import annotations
 
@@ -19,19 +20,18 @@ from typing import Callable
 import numpy as np
 import torch
 
-from safemanip.rl.buffer import ReplayBuffer, ReplayFileError
-from safemanip.rl.checkpoint import (CHECKPOINT_NAMES, CheckpointError, find_checkpoint, read_checkpoint,
-                                     read_checkpoint_meta, recover_checkpoint, save_policy, write_checkpoint)
+from safemanip.rl.buffer import ReplayBuffer, ReplayFileError, remove_unlisted_chunks
+from safemanip.rl.checkpoint import (CHECKPOINT_NAMES, REPLAY_DIR, CheckpointError, CheckpointWriter, find_checkpoint,
+                                     read_checkpoint, read_checkpoint_meta, recover_checkpoint, save_policy)
 from safemanip.rl.collector import make_pool
 from safemanip.rl.config import ConfigError, TrainConfig, load_run_config
 from safemanip.rl.envs import EnvBuilder, env_builder
 from safemanip.rl.learner import Learner
 from safemanip.rl.networks import actor_arrays
-from safemanip.rl.rollout import evaluate_actor
+from safemanip.rl.rollout import EvalRequest, evaluate_weights, make_evaluator
 from safemanip.util.files import OutputLock, atomic_write_text, check_output_dir, parse_json, read_json_file
 from safemanip.util.procs import WorkerDied, describe_exit, stop_on_signals
 
-EVAL_SEED_BASE = 1_000_000  # evaluation seeds are disjoint from every training seed
 SYNC_EVERY = 50  # learner updates between actor-weight broadcasts to the workers
 
 
@@ -67,17 +67,6 @@ def policy_meta(cfg: TrainConfig, obs_dim: int, act_dim: int, eval_result: dict 
             "train_command": command}
 
 
-def evaluate_now(actor, build: EnvBuilder, episodes: int) -> dict:
-    records = evaluate_actor(actor_arrays(actor), build, [EVAL_SEED_BASE + i for i in range(episodes)])
-    events = Counter(r["event"] for r in records)
-    result = {"episodes": episodes, "success": events["success"] / episodes,
-              "mean_length": float(np.mean([r["length"] for r in records]))}
-    for event, n in events.items():
-        if event != "success":
-            result[event] = n / episodes
-    return result
-
-
 def train(cfg: TrainConfig, resume: bool = False, progress: bool = True, command: str | None = None,
           run_dir: str | Path | None = None, env_factory: Callable | None = None) -> Path:
     """Train (or, with ``resume``, continue) the run in ``run_dir`` (default ``cfg.out_dir``).
@@ -109,9 +98,14 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True, command
         return _train_locked(cfg, run_dir, resume, progress, command, build, warm)
 
 
-def truncate_logs(run_dir: Path, env_steps: int) -> None:
+def truncate_logs(run_dir: Path, env_steps: int, evals: int | None = None, best: dict | None = None) -> int:
     """Drop the log rows written after the checkpoint a run resumes from, so the logs never go backwards
-    (scalars.csv, evals.jsonl) and best.safetensors matches the resumed history."""
+    (scalars.csv, evals.jsonl) and best.safetensors matches the resumed history; returns the evaluations kept.
+
+    ``evals`` and ``best``: the number of evaluations the checkpoint had recorded and its best one (checkpoints
+    since issue 42). An evaluation runs beside training, so one of weights from before the checkpoint may have
+    been recorded after it: the first ``evals`` records are kept, and best.safetensors only if it is ``best``'s.
+    Without them (older checkpoints) records and best.safetensors are kept by their env steps."""
     scalars = run_dir / "scalars.csv"
     if scalars.exists():
         rows = []
@@ -127,28 +121,33 @@ def truncate_logs(run_dir: Path, env_steps: int) -> None:
             text = io.StringIO()
             csv.writer(text).writerows(kept)
             atomic_write_text(scalars, text.getvalue())
-    evals = run_dir / "evals.jsonl"
-    if evals.exists():
-        kept_lines = []
-        for line in evals.read_text(errors="replace").splitlines():
+    evals_file = run_dir / "evals.jsonl"
+    kept_lines = []
+    if evals_file.exists():
+        for line in evals_file.read_text(errors="replace").splitlines():
             try:
                 steps = parse_json(line, "a line of evals.jsonl", max_bytes=100_000)["env_steps"]
                 if isinstance(steps, int) and not isinstance(steps, bool) and steps <= env_steps:
                     kept_lines.append(line)
             except (ValueError, KeyError, TypeError):
                 pass  # a torn last line from a kill, or a line that is not an evaluation: dropped
-        atomic_write_text(evals, "".join(x + "\n" for x in kept_lines))
-    best = run_dir / "best.safetensors"
-    if best.exists():
+        if evals is not None:
+            kept_lines = kept_lines[:evals]
+        atomic_write_text(evals_file, "".join(x + "\n" for x in kept_lines))
+    best_file = run_dir / "best.safetensors"
+    if best_file.exists():
         from safemanip.rl.checkpoint import PolicyFileError, load_policy
         try:
-            best_steps = load_policy(best)[1].get("env_steps", 0)
+            best_meta = load_policy(best_file)[1]
         except PolicyFileError:
-            best_steps = env_steps + 1
+            best_meta = {"env_steps": env_steps + 1}
+        best_steps = best_meta.get("env_steps", 0)
         if not isinstance(best_steps, int):
             best_steps = env_steps + 1
-        if best_steps > env_steps:  # from the discarded segment: keep it aside, not as the run's best
-            os.replace(best, run_dir / f"best.discarded-{best_steps}.safetensors")
+        discarded = best_steps > env_steps if best is None else best_meta.get("eval") != best
+        if discarded:  # from the discarded segment: keep it aside, not as the run's best
+            os.replace(best_file, run_dir / f"best.discarded-{best_steps}.safetensors")
+    return len(kept_lines)
 
 
 WARM_START_FIELDS = ("algorithm", "k", "network", "set_embed", "hidden", "twin_critics", "object_size", "embodiment",
@@ -258,7 +257,12 @@ def _train_locked(cfg: TrainConfig, run_dir: Path, resume: bool, progress: bool,
 class Trainer:
     """One training run, phase by phase. ``run`` is the loop and reads top to bottom: ``collect`` takes in the
     rollout workers' transitions, ``update`` takes learner steps at the configured data rate, and ``log``,
-    ``evaluate`` and ``checkpoint`` run on their own clocks; ``finish`` saves the policy and the summary."""
+    ``evaluate`` and ``checkpoint`` run on their own clocks; ``finish`` saves the policy and the summary.
+
+    Neither an evaluation nor a checkpoint makes the learner wait: ``evaluate`` hands a copy of the actor's weights
+    to the evaluation process and ``take_evaluations`` records the result when it is there (the ``inline`` backend
+    evaluates at once, in this process); ``checkpoint`` hands a copy of the state and of the transitions added
+    since the last checkpoint to the writer thread."""
 
     def __init__(self, cfg: TrainConfig, run_dir: Path, command: str | None, build: EnvBuilder):
         self.cfg, self.run_dir, self.command = cfg, run_dir, command
@@ -282,12 +286,14 @@ class Trainer:
         self.restarts = 0
         self.best: dict = {"success": -1.0}
         self.last_eval_result: dict | None = None
+        self.evals_recorded = 0  # lines of evals.jsonl: a checkpoint records how many belong to it
         self.last_metrics: dict[str, float] = {}
         self.recent_events: deque[str] = deque(maxlen=200)
         self.gamma = cfg.gamma_at(0.0)
         self.learning_rate = cfg.learning_rate_at(0.0)
         self.interrupted = self.worker_failed = None
-        self.pool = self.log_file = self.bar = None
+        self.pool = self.log_file = self.bar = self.evaluator = None
+        self.writer = CheckpointWriter()
         self.start = time.perf_counter()
 
     # ------------------------------------------------------------------ the run's start
@@ -301,19 +307,21 @@ class Trainer:
             raise CheckpointError(f"--resume {run_dir}: the networks in {checkpoint / 'state.safetensors'} do not fit "
                                   f"its config.json ({str(err)[:200]}). {recovery_hint(run_dir)}") from err
         self.learner.updates = self.updates = meta["updates"]
-        try:
-            self.buffer.load(replay_path)
+        try:  # the index in the checkpoint, the transitions in the chunks it lists (or, before issue 42, in it)
+            self.buffer.load(replay_path, run_dir / REPLAY_DIR)
         except ReplayFileError as err:
             raise CheckpointError(f"--resume {run_dir}: the replay buffer cannot be restored: {err}. The run cannot "
                                   f"continue exactly from this checkpoint; to keep its networks, start a new run from "
                                   f"them (fresh replay buffer): safemanip train --config {run_dir / 'config.json'} "
-                                  f"--init-from {run_dir} --out NEW_FOLDER; or restore {replay_path.name} from a "
+                                  f"--init-from {run_dir} --out NEW_FOLDER; or restore the damaged file from a "
                                   f"backup") from err
+        remove_unlisted_chunks(run_dir / REPLAY_DIR, self.buffer.chunks)  # what a kill left of a later checkpoint
         self.env_steps, self.elapsed_before = meta["env_steps"], meta["elapsed_s"]
         self.restarts = meta.get("restarts", 0) + 1
         self.best = meta.get("best", self.best)
         self.rng = np.random.default_rng([cfg.seed, self.restarts])
-        truncate_logs(run_dir, self.env_steps)
+        self.evals_recorded = truncate_logs(run_dir, self.env_steps, meta.get("evals"),
+                                            self.best if "evals" in meta else None)
         print(f"resuming {run_dir} from {self.env_steps} env steps / {self.updates} updates "
               f"({self.elapsed_before / 60:.1f} min)")
 
@@ -323,6 +331,7 @@ class Trainer:
         for stale in ("scalars.csv", "evals.jsonl", "summary.json", "init_from.json"):
             (run_dir / stale).unlink(missing_ok=True)
         shutil.rmtree(run_dir / "tb", ignore_errors=True)
+        shutil.rmtree(run_dir / REPLAY_DIR, ignore_errors=True)
         if warm is not None:
             self.learner.load_state_tensors(warm[0])  # networks only: fresh optimiser moments, empty replay buffer
             atomic_write_text(run_dir / "init_from.json", json.dumps(warm[1], indent=1))  # survives --resume
@@ -334,43 +343,56 @@ class Trainer:
         cfg = self.cfg
         # rollout workers on the other core(s): local processes (dying with this one), Ray actors, or inline
         self.pool = make_pool(cfg, self.build, cfg.seed + 1000 * self.restarts, self.env_steps, self.updates)
-        self.broadcast()
-        self.log_file = ScalarLog(self.run_dir)
-        if progress:
-            from tqdm import tqdm
-
-            self.bar = tqdm(total=cfg.total_env_steps, initial=self.env_steps, unit="step", dynamic_ncols=True,
-                            smoothing=0.05)
-        self.start = time.perf_counter()
-        last_log = last_eval = last_ckpt = last_alive_check = self.start
-        self.steps_at_log, self.updates_at_log = self.env_steps, self.updates
-        with stop_on_signals(raise_exc=False) as stopped:
+        try:
             try:
-                while not self.done(stopped):
-                    got = self.collect()
-                    if self.worker_failed:
-                        break
-                    if not self.update() and got == 0:
-                        time.sleep(0.001)
-                    now = time.perf_counter()
-                    if now - last_alive_check >= 1.0:
-                        if self.workers_dead():
-                            break
-                        last_alive_check = now
-                    if now - last_log >= cfg.log_every_s:
-                        self.log(now - last_log)
-                        last_log = now
-                    if self.buffer.size >= cfg.learning_starts and now - last_eval >= cfg.eval_every_s:
-                        self.evaluate()
-                        last_eval = time.perf_counter()
-                    if now - last_ckpt >= cfg.checkpoint_every_s:
-                        self.checkpoint()
-                        last_ckpt = time.perf_counter()
+                # evaluations beside training: a process of their own (dying with this one), or inline
+                self.evaluator = make_evaluator(cfg.backend, self.build, cfg.eval_episodes)
+                self.broadcast()
+                self.log_file = ScalarLog(self.run_dir)
+                if progress:
+                    from tqdm import tqdm
+
+                    self.bar = tqdm(total=cfg.total_env_steps, initial=self.env_steps, unit="step",
+                                    dynamic_ncols=True, smoothing=0.05)
+                self.start = time.perf_counter()
+                self.loop()
             finally:
                 self.pool.close()
                 if self.bar is not None:
                     self.bar.close()
-        self.finish()
+            self.finish()
+        finally:
+            if self.evaluator is not None:
+                self.evaluator.close()
+
+    def loop(self) -> None:
+        cfg = self.cfg
+        last_log = last_eval = last_ckpt = last_alive_check = self.start
+        self.steps_at_log, self.updates_at_log = self.env_steps, self.updates
+        with stop_on_signals(raise_exc=False) as stopped:
+            while not self.done(stopped):
+                got = self.collect()
+                if self.worker_failed:
+                    break
+                if not self.update() and got == 0:
+                    time.sleep(0.001)
+                now = time.perf_counter()
+                if now - last_alive_check >= 1.0:  # once a second: off the learner's path
+                    # (a worker ended by a SIGTERM to the whole process group is no failure: the run stops for it)
+                    if stopped["signum"] is None and self.workers_dead():
+                        break
+                    self.take_evaluations()
+                    last_alive_check = now
+                if now - last_log >= cfg.log_every_s:
+                    self.log(now - last_log)
+                    last_log = now
+                if self.buffer.size >= cfg.learning_starts and now - last_eval >= cfg.eval_every_s \
+                        and self.evaluator.idle:  # one evaluation at a time: a slow one delays the next
+                    self.evaluate()
+                    last_eval = time.perf_counter()
+                if now - last_ckpt >= cfg.checkpoint_every_s:
+                    self.checkpoint()
+                    last_ckpt = time.perf_counter()
 
     def done(self, stopped: dict) -> bool:
         """The budget is used up, or SIGINT/SIGTERM asked for a stop (checked here: no update is cut in half)."""
@@ -421,11 +443,14 @@ class Trainer:
         self.pool.broadcast(actor_arrays(self.learner.actor))
 
     def workers_dead(self) -> bool:
-        """A worker that died (an env error, out of memory) ends the run with its exit code."""
+        """A worker that died (an env error, out of memory) ends the run with its exit code; so does the evaluation
+        process."""
         dead = self.pool.dead()
         if dead is not None:
             self.worker_failed = f"a rollout worker {describe_exit(dead)}"
-        return dead is not None
+        elif self.evaluator.dead() is not None:
+            self.worker_failed = f"the evaluation process {describe_exit(self.evaluator.dead())}"
+        return self.worker_failed is not None
 
     def log(self, dt: float) -> None:
         rates = {"perf/env_steps_per_s": (self.env_steps - self.steps_at_log) / dt,
@@ -443,22 +468,40 @@ class Trainer:
         self.steps_at_log, self.updates_at_log = self.env_steps, self.updates
 
     def evaluate(self) -> None:
-        """Held-out episodes with the current actor; the best so far is kept as ``best.safetensors``."""
-        result = evaluate_now(self.learner.actor, self.build, self.cfg.eval_episodes)
-        result.update(env_steps=self.env_steps, updates=self.updates, wall_s=round(self.elapsed(), 1))
+        """Held-out episodes with a copy of the current actor, beside training (``inline``: here and now)."""
+        self.evaluator.submit(EvalRequest(actor_arrays(self.learner.actor), self.env_steps, self.updates,
+                                          round(self.elapsed(), 1)))
+        self.take_evaluations()
+
+    def take_evaluations(self) -> None:
+        for request, result in self.evaluator.take():
+            self.record_evaluation(request, result)
+
+    def record_evaluation(self, request: EvalRequest, result: dict) -> None:
+        """Log a finished evaluation under the counters of the weights it evaluated; the best so far is kept as
+        ``best.safetensors``: those weights, not the actor's current ones."""
+        result.update(env_steps=request.env_steps, updates=request.updates, wall_s=request.wall_s)
         self.last_eval_result = result
+        # scalars.csv is a log in time order: its eval/ rows go under the counters of when the result came in
         self.log_file.log({f"eval/{k}": v for k, v in result.items() if isinstance(v, float) and k != "wall_s"},
                           self.env_steps, self.updates, self.elapsed())
         with open(self.run_dir / "evals.jsonl", "a") as f:  # one whole line per write
             f.write(json.dumps(result) + "\n")
+        self.evals_recorded += 1
         if result["success"] >= self.best["success"]:
             self.best = result
-            save_policy(self.run_dir / "best.safetensors", actor_arrays(self.learner.actor), self.policy_meta(result))
+            save_policy(self.run_dir / "best.safetensors", request.arrays,
+                        policy_meta(self.cfg, self.obs_dim, self.act_dim, result, request.env_steps, request.updates,
+                                    request.wall_s, self.command))
 
-    def checkpoint(self) -> None:
+    def checkpoint(self, wait: bool = False) -> None:
+        """Hand a checkpoint to the writer thread (``wait``: and wait until it is on disk)."""
         meta = {"env_steps": self.env_steps, "updates": self.updates, "elapsed_s": self.elapsed(),
-                "restarts": self.restarts, "best": self.best, "config": json.loads(self.cfg.to_json())}
-        write_checkpoint(self.run_dir, self.learner.state_tensors(), self.buffer, meta)
+                "restarts": self.restarts, "best": self.best, "evals": self.evals_recorded,
+                "config": json.loads(self.cfg.to_json())}
+        self.writer.submit(self.run_dir, self.learner.state_tensors(), self.buffer, meta)
+        if wait:
+            self.writer.wait()
 
     # ------------------------------------------------------------------ the run's end
     def finish(self) -> None:
@@ -467,10 +510,12 @@ class Trainer:
         if self.worker_failed is not None:  # the learner and its buffer are whole: save them, then report
             print(f"{self.worker_failed}: stopping; saving a checkpoint and the current policy (no final evaluation)")
         elif self.interrupted is None:
-            self.evaluate()
+            self.final_evaluation()
         else:
             print(f"{self.interrupted}: stopping; saving a checkpoint and the current policy (no final evaluation)")
-        self.checkpoint()
+        if self.interrupted is not None or self.worker_failed is not None:
+            self.take_evaluations()  # one that has finished; one still running is dropped (nothing of it recorded)
+        self.checkpoint(wait=True)
         save_policy(run_dir / "policy.safetensors", actor_arrays(self.learner.actor),
                     self.policy_meta(self.last_eval_result))
         self.log_file.close()
@@ -486,6 +531,15 @@ class Trainer:
         if self.worker_failed is not None:
             raise WorkerDied(f"{self.worker_failed}; the run stopped after {self.env_steps} env steps and saved a "
                              f"checkpoint and its policy in {run_dir}; continue with: safemanip train --resume {run_dir}")
+
+    def final_evaluation(self) -> None:
+        """The final actor, evaluated here and now (nothing is left to overlap) while the evaluation in flight, of
+        earlier weights, finishes beside it; both recorded, in the order of their weights."""
+        request = EvalRequest(actor_arrays(self.learner.actor), self.env_steps, self.updates, round(self.elapsed(), 1))
+        result = evaluate_weights(request.arrays, self.build, self.cfg.eval_episodes)
+        for earlier in self.evaluator.wait():
+            self.record_evaluation(*earlier)
+        self.record_evaluation(request, result)
 
     def elapsed(self) -> float:
         return self.elapsed_before + time.perf_counter() - self.start
