@@ -200,6 +200,15 @@ def cmdline(pid: int) -> str:
         return ""
 
 
+def process_name(pid: int) -> str:
+    """A process's name in ps/top (``/proc/PID/comm``; '' once it is gone): the training run's evaluation process
+    names itself 'safemanip-eval'."""
+    try:
+        return Path(f"/proc/{pid}/comm").read_text().strip()
+    except OSError:
+        return ""
+
+
 # ------------------------------------------------------------------------------------------ a fake VLM server
 VLM_NAMES = ("red mug", "toy sheep", "soda can")
 """The objects of ``vlm_view``."""

@@ -26,7 +26,7 @@ from safemanip.semantics.guard import GuardedBackend
 from safemanip.semantics.openai_backend import OpenAIBackend
 from safemanip.semantics.selectors import DynamicVLMSelector, VLMConstraintSelector, dynamic_knn
 from conftest import (SAFEMANIP, SUBPROCESS_ENV, TINY_TRAIN, VLM_NAMES, FakeServer, assert_refused, cmdline, completion,
-                      descendants, json_reply, make_policy, pick_last_k, run_cli, schema_of, vlm_view)
+                      descendants, json_reply, make_policy, pick_last_k, process_name, run_cli, schema_of, vlm_view)
 
 SECRET = "sk-test-Secret-0123456789abcdef"
 
@@ -505,8 +505,12 @@ def test_a_killed_rollout_worker_ends_train_with_one_line_and_the_resume_command
         while time.time() < deadline and worker is None:
             assert proc.poll() is None, proc.communicate()
             if (run_dir / "scalars.csv").exists():  # the training loop runs
-                workers = [p for p in descendants(proc.pid) if "spawn_main" in cmdline(p)]
-                worker = workers[0] if workers else None
+                # the run's two spawned children: the evaluation process (once it has named itself) and the
+                # rollout worker, the one to kill
+                spawned = [p for p in descendants(proc.pid) if "spawn_main" in cmdline(p)]
+                named = [p for p in spawned if process_name(p) == "safemanip-eval"]
+                workers = [p for p in spawned if p not in named]
+                worker = workers[0] if workers and named else None
             time.sleep(0.2)
         assert worker is not None, "no rollout worker within 120 s"
         os.kill(worker, signal.SIGKILL)
