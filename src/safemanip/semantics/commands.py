@@ -18,6 +18,7 @@ from PIL import Image
 
 from safemanip.scene.catalog import CONSTRAINT_OF_CLASS, CONSTRAINT_TYPES, SEMANTIC_CLASSES, load_catalog
 from safemanip.selection.base import SceneView, nearest_ids
+from safemanip.selection.selectors import DEFAULT_SOFT_REACH
 from safemanip.semantics.base import VLM_BACKENDS, Backend, BackendError, ConstraintQuery, ObjectQuery, object_label
 from safemanip.semantics.cache import ResponseCache
 from safemanip.util.secrets import redact, redact_value
@@ -32,17 +33,17 @@ NAME_VARIANTS = ("{name}", "the {name}", "a {name}", "{Name}", "{name} on the ta
 def make_backend(backend_name: str, *, model: str | None = None, base_url: str | None = None,
                  cache_dir: str | None = None, cache_mode: str = "readwrite", timeout_s: float = 30.0,
                  attempts: int = 3, semantic_examples: str | None = None, ranking: str = "criticality",
-                 soft_reach: float | None = None) -> Backend:
+                 soft_reach: float = DEFAULT_SOFT_REACH) -> Backend:
     """Build a backend by name: ``semantic`` (offline, default) or ``openai`` (any compatible server).
 
     ``semantic_examples`` picks the semantic backend's example set and decision rule ("v1", "v2", "v3" or a
     file name in ``semantics/data``; default: the newest). ``ranking``: how the offline backend ranks objects
-    (``SemanticBackend``) and ``soft_reach`` its criticality tiers (None: the default); a VLM ranks them itself.
+    (``SemanticBackend``) and ``soft_reach`` its criticality tiers; a VLM ranks them itself.
     """
     if backend_name == "semantic":
         from safemanip.semantics.semantic_backend import DEFAULT_EXAMPLES, SemanticBackend
-        extra = {} if soft_reach is None else {"soft_reach": soft_reach}
-        return SemanticBackend(examples_file=semantic_examples or DEFAULT_EXAMPLES, ranking=ranking, **extra)
+        return SemanticBackend(examples_file=semantic_examples or DEFAULT_EXAMPLES, ranking=ranking,
+                               soft_reach=soft_reach)
     if backend_name == "openai":
         from safemanip.semantics.openai_backend import OpenAIBackend
         cache = ResponseCache(cache_dir, mode=cache_mode) if cache_dir else None
