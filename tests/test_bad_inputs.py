@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from safemanip.rl.checkpoint import SHIPPED_POLICIES
+from safemanip.rl.policy_index import PACKAGE_POLICIES
 from conftest import SUBPROCESS_ENV, assert_refused, make_policy, policy_file, run_cli, run_safemanip
 
-POLICY = str(SHIPPED_POLICIES / "rarl-k2-conservative-s0.safetensors")
+POLICY = str(PACKAGE_POLICIES / "rarl-k2-conservative-s0.safetensors")
 EVAL = ["eval", "--policy", POLICY, "--episodes", "1", "--workers", "1", "--no-progress"]
 
 

@@ -310,7 +310,7 @@ def test_train_here_finishes_each_run_and_skips_or_resumes_it_next_time(trained,
 
 
 @pytest.mark.slow
-def test_promote_a_tiny_real_run(trained, capsys, tmp_path):
+def test_promote_a_tiny_real_run(trained, capsys, tmp_path, monkeypatch):
     t = {"bench": trained["bench"], "runs": tmp_path / "runs", "policies": tmp_path / "policies",
          "records": tmp_path / "rec"}
     shutil.copytree(trained["runs"] / RUNS[0], t["runs"] / RUNS[0])
@@ -322,6 +322,14 @@ def test_promote_a_tiny_real_run(trained, capsys, tmp_path):
     promoted = t["policies"] / f"{RUNS[0]}.safetensors"
     assert promoted.read_bytes() == (t["runs"] / RUNS[0] / f"{chosen}.safetensors").read_bytes()
     assert out.startswith(f"{RUNS[0]}: final ")
+    # listed in the folder's manifest, through which --policy NAME finds it
+    from safemanip.rl.policy_index import ENV_VAR, find_policy, read_manifest
+
+    entry = read_manifest(t["policies"])[RUNS[0]]
+    assert (entry.file, entry.chosen, entry.k) == (promoted.name, choice["chosen"], 1)
+    assert (t["policies"] / entry.record).resolve() == (t["records"] / RUNS[0]).resolve()
+    monkeypatch.setenv(ENV_VAR, str(t["policies"]))
+    assert find_policy(RUNS[0]) == t["policies"] / promoted.name
     for name in ("config.json", "evals.jsonl", "summary.json"):
         assert (t["records"] / RUNS[0] / name).read_bytes() == (t["runs"] / RUNS[0] / name).read_bytes()
     code, out, _ = run_cli(capsys, promote_argv(t))

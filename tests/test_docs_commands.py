@@ -46,6 +46,6 @@ def test_a_documented_command_parses(where, command):
         pytest.fail(f"{where}: `{command}` does not parse (exit {exit_.code})")
     assert callable(getattr(args, "func", None)), f"{where}: `{command}` names no subcommand"
     policy = getattr(args, "policy", None)
-    if policy and "/" not in policy and not policy.endswith(".safetensors"):  # a shipped policy's name
-        from safemanip.rl.checkpoint import SHIPPED_POLICIES
-        assert (SHIPPED_POLICIES / f"{policy}.safetensors").is_file(), f"{where}: no shipped policy {policy!r}"
+    if policy and "/" not in policy and not policy.endswith(".safetensors"):  # a known policy's name
+        from safemanip.rl.policy_index import find_policy
+        assert find_policy(policy) is not None, f"{where}: no policy {policy!r} in the package or results/policies"

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from safemanip.evaluation.sweep import SweepError, available, cells_of, load_config, render, run_sweep
-from conftest import fake_summary, make_policy
+from conftest import ROOT, fake_summary, make_policy
 
 
 def test_shipped_sweeps_load_and_form_the_paper_grids():
@@ -147,13 +147,14 @@ def test_printed_train_commands_parse_and_name_the_benchmark_run():
 
 
 def test_a_missing_policy_in_another_folder_is_skipped_not_replaced_by_the_shipped_one(tmp_path, monkeypatch):
-    """Only a bare name or ``policies/FILE`` falls back to a shipped policy: ``runs/x/rarl-k2-conservative``
-    must not silently evaluate the shipped π_2 (it once did, and stored the cells as done)."""
-    from safemanip.rl.checkpoint import SHIPPED_POLICIES, resolve_policy
+    """Only a bare name or ``policies/FILE`` falls back to a known policy: ``runs/x/rarl-k2-conservative``
+    must not silently evaluate the benchmark's π_2 (it once did, and stored the cells as done)."""
+    from safemanip.rl.checkpoint import resolve_policy
 
-    assert resolve_policy("rarl-k2-conservative-s0") == SHIPPED_POLICIES / "rarl-k2-conservative-s0.safetensors"
-    assert resolve_policy("policies/rarl-k2-conservative-s0.safetensors").resolve() == \
-        (SHIPPED_POLICIES / "rarl-k2-conservative-s0.safetensors").resolve()  # from any working folder
+    benchmark = (ROOT / "results" / "policies" / "rarl-k3-conservative-s1.safetensors").resolve()
+    assert resolve_policy("rarl-k3-conservative-s1").resolve() == benchmark
+    monkeypatch.chdir(tmp_path)  # from any working folder: the source checkout's results/policies
+    assert resolve_policy("policies/rarl-k3-conservative-s1.safetensors").resolve() == benchmark
     elsewhere = tmp_path / "runs" / "rarl-k2-conservative.safetensors"
     assert resolve_policy(elsewhere) == elsewhere and not elsewhere.exists()
     relative = "runs/selaware/rarl-k2-conservative.safetensors"
@@ -211,11 +212,11 @@ def test_a_policy_whose_metadata_contradicts_its_name_is_refused_before_any_cell
     """A shipped k = 2 policy copied under a k = 3 name: the sweep refuses up front with exit 2 and one line, and
     writes nothing (it used to fail the cell, exit 1 and draw the table)."""
     from safemanip.cli import main
-    from safemanip.rl.checkpoint import SHIPPED_POLICIES
+    from safemanip.rl.policy_index import PACKAGE_POLICIES
 
     good = make_policy(tmp_path / "rarl-k2-conservative.safetensors", 2)
     wrong = tmp_path / "rarl-k3-conservative-s0.safetensors"
-    wrong.write_bytes((SHIPPED_POLICIES / "rarl-k2-conservative-s0.safetensors").read_bytes())
+    wrong.write_bytes((PACKAGE_POLICIES / "rarl-k2-conservative-s0.safetensors").read_bytes())
     name = _config(tmp_path, [good, str(wrong)])
     out = tmp_path / "out"
     assert main(["sweep", name, "--out", str(out), "--workers", "1", "--no-progress"]) == 2
@@ -229,10 +230,10 @@ def test_a_policy_whose_metadata_contradicts_its_name_is_refused_before_any_cell
 
 def test_every_identity_field_of_the_cell_id_is_checked(tmp_path):
     from safemanip.evaluation.sweep import check_policies
-    from safemanip.rl.checkpoint import SHIPPED_POLICIES
+    from safemanip.rl.policy_index import PACKAGE_POLICIES
 
     renamed = tmp_path / "vanilla-k2-conservative-selaware-s1.safetensors"
-    renamed.write_bytes((SHIPPED_POLICIES / "rarl-k2-conservative-s0.safetensors").read_bytes())
+    renamed.write_bytes((PACKAGE_POLICIES / "rarl-k2-conservative-s0.safetensors").read_bytes())
     with pytest.raises(SweepError, match="says algorithm=rarl, variant=the paper's way, seed=0, its name "
                                          "algorithm=vanilla, variant=selaware, seed=1"):
         check_policies(cells_of(load_config(_config(tmp_path, [str(renamed)]))), "mini")

@@ -96,12 +96,12 @@ def test_policy_file_is_validated(tmp_path):
 
 def test_every_shipped_policy_and_training_record_is_in_the_current_format():
     """The retired formats (issue 43: ``n_objects`` for k, ``env_factory``) are refused, so nothing shipped may still
-    use them: every policy in the package loads, and its training config and every training record under
+    use them: every policy in the package and in results/policies loads, and its training config and every training record under
     results/training read as a TrainConfig."""
-    from safemanip.rl.checkpoint import SHIPPED_POLICIES
     from safemanip.rl.config import load_run_config
+    from safemanip.rl.policy_index import PACKAGE_POLICIES
 
-    policies = sorted(SHIPPED_POLICIES.glob("*.safetensors"))
+    policies = sorted(PACKAGE_POLICIES.glob("*.safetensors")) + sorted((ROOT / "results" / "policies").glob("*.safetensors"))
     records = sorted((ROOT / "results" / "training").glob("*/config.json"))
     assert policies and records
     for path in policies:

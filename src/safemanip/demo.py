@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 DEFAULT_SCENE = {"n_objects": 4, "seed": 7}
-DEFAULT_POLICY = "rarl-k2-conservative-s0"  # shipped in src/safemanip/policies/
+DEFAULT_POLICY = "rarl-k2-conservative-s0"  # the one policy the package ships (src/safemanip/policies/)
 _WATCH_FPS = 100  # frames per simulated second when filming every 5 substeps of 2 ms
 VIDEO_FPS = (20, 25, 50, 100)
 """Frames per simulated second a demo video can have (divisors of 100)."""

@@ -3,7 +3,8 @@
 For every run that reached the budget, the final policy and the best one of its periodic evaluations are each
 evaluated on the benchmark's selection block (used for this choice and nothing else; the reported numbers use other
 blocks), in the scenes the policy was trained in: N = k on its own layout, or for a selection-aware policy N =
-scene_objects with dynamic kNN. The better one (the final one on a tie) is copied to ``POLICIES/NAME.safetensors``;
+scene_objects with dynamic kNN. The better one (the final one on a tie) is copied to ``POLICIES/NAME.safetensors``
+and listed in ``POLICIES/manifest.json`` (``rl/policy_index.py``: how --policy NAME finds it);
 the run's config, periodic evaluations and summary to ``RECORDS/NAME/``, with the choice in ``choice.json``. Runs
 already promoted are skipped.
 
@@ -60,7 +61,13 @@ def plan(bench: Benchmark, runs_dir: Path, policies: Path, records: Path) -> lis
             if candidate is not None:
                 todo.append(candidate)
     if todo:
+        from safemanip.rl.policy_index import PolicyIndexError, read_manifest
+
         problems += check_output_dir(policies, "the policies folder")
+        try:
+            read_manifest(policies)
+        except PolicyIndexError as err:  # found now, not after the first evaluation
+            problems.append(str(err))
         for candidate in todo:
             problems += check_output_dir(records / candidate.record.run.name, "the records folder")
     if problems:
@@ -115,6 +122,19 @@ def success_rate(bench: Benchmark, policy: Path, scene_objects: int | None, out:
     return summary["success"]["rate"]
 
 
+def _index(policies: Path, name: str, record: Path, chosen: str) -> None:
+    """List the promoted policy in the folder's manifest (``rl/policy_index.py``), through which --policy NAME
+    finds it; the manifest is rewritten atomically, so a kill leaves the old or the new one."""
+    from safemanip.rl.checkpoint import load_policy
+    from safemanip.rl.policy_index import entry_for, read_manifest, write_manifest
+
+    entries = read_manifest(policies)
+    _, meta = load_policy(policies / f"{name}.safetensors")
+    entries[name] = entry_for(policies, policies / f"{name}.safetensors", meta,
+                              os.path.relpath(record, policies), chosen)
+    write_manifest(policies, entries)
+
+
 def promote(bench: Benchmark, candidate: Candidate, policies: Path, records: Path, log=print) -> dict:
     """Evaluate the candidate's policy files, copy the better one and the run's records; returns the choice."""
     run, folder = candidate.record.run, candidate.record.folder
@@ -134,5 +154,6 @@ def promote(bench: Benchmark, candidate: Candidate, policies: Path, records: Pat
     partial = Path(policies) / f".{run.name}.safetensors.partial"
     shutil.copy2(folder / f"{chosen}.safetensors", partial)
     os.replace(partial, Path(policies) / f"{run.name}.safetensors")
+    _index(Path(policies), run.name, kept, choice["chosen"])
     log(f"{run.name}: final {rates['policy']:.3f}, best {rates.get('best', float('nan')):.3f} -> {choice['chosen']}")
     return choice

@@ -28,9 +28,9 @@ TRAIN_ADDRESS_HELP = ("Ray cluster address (HOST:PORT, as `ray start --head` pri
 
 
 def _policies(args) -> Path:
-    from safemanip.rl.checkpoint import SHIPPED_POLICIES
+    from safemanip.rl.policy_index import BENCHMARK_POLICIES
 
-    return Path(args.policies) if args.policies else SHIPPED_POLICIES
+    return Path(args.policies) if args.policies else BENCHMARK_POLICIES
 
 
 def _cmd_train(args) -> int:
@@ -104,7 +104,7 @@ def _cmd_status(args) -> int:
 
 def _add_common(p: argparse.ArgumentParser, command: str) -> None:
     p.add_argument("--benchmark", metavar="FILE", help="a benchmark file of your own (default: the shipped one)")
-    p.add_argument("--policies", metavar="DIR", help="the policies folder (default: the package's own)")
+    p.add_argument("--policies", metavar="DIR", help="the policies folder, with its manifest (default: results/policies)")
     p.set_defaults(command=f"bench {command}")  # errors read "safemanip bench train: error: ..."
 
 

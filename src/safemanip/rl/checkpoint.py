@@ -220,24 +220,21 @@ class PolicyFileError(ValueError):
     pass
 
 
-SHIPPED_POLICIES = Path(__file__).resolve().parent.parent / "policies"
-
-
 def resolve_policy(name_or_path: str | Path) -> Path:
-    """A path as given if it exists, else a shipped policy by name (``rarl-k2-conservative-s0``) or by
-    ``policies/FILE`` (the form the shipped sweeps use, so they run from any working folder).
+    """A path as given if it exists, else a policy by name (``rarl-k2-conservative-s0``) or by ``policies/FILE``
+    (the form the shipped sweeps use, so they run from any working folder), found through the policy folders'
+    manifests (``rl/policy_index.py``: the benchmark's results/policies, then the package's demo policy).
 
     Only those two forms fall back: a path into any other folder that does not exist stays missing (and is
-    reported so), rather than silently standing for the shipped policy that happens to share its file name."""
+    reported so), rather than silently standing for a known policy that happens to share its file name."""
+    from safemanip.rl.policy_index import find_policy
+
     path = Path(name_or_path)
     if path.exists():
         return path
     if path.parent not in (Path("."), Path("policies")):
         return path
-    for candidate in (SHIPPED_POLICIES / path.name, SHIPPED_POLICIES / f"{path.name}.safetensors"):
-        if candidate.exists():
-            return candidate
-    return path
+    return find_policy(path.name) or path
 
 
 MAX_HEADER_BYTES = 10_000_000
@@ -336,8 +333,11 @@ def load_policy(path: str | Path):
             raise PolicyFileError(f"{path} holds no policy.safetensors or best.safetensors; pass a policy file")
         path = found
     if not path.exists():
-        shipped = sorted(p.stem for p in SHIPPED_POLICIES.glob("*.safetensors"))
-        raise PolicyFileError(f"no policy file at {path}; pass a .safetensors file or a shipped policy name: {shipped}")
+        from safemanip.rl.policy_index import BENCHMARK_POLICIES, ENV_VAR, known_policies
+
+        raise PolicyFileError(f"no policy file at {path}; pass a .safetensors file or a policy name: "
+                              f"{known_policies()} (the benchmark's policies are found in {BENCHMARK_POLICIES} of "
+                              f"the repository, or in the folder {ENV_VAR} names)")
     header = check_safetensors(path).get("__metadata__") or {}
     if header.get("format") != POLICY_FORMAT:
         raise PolicyFileError(f"{path} is not a safemanip policy (format {header.get('format')!r}, "
