@@ -1,6 +1,6 @@
 """The paper's five findings, read off the benchmark's stored sweep cells, with a verdict each (``verdict.py``): the
-status and findings blocks of docs/results.md, between their ``<!-- status -->`` and ``<!-- findings -->`` markers,
-rewritten in place by ``safemanip bench findings`` (``--check``: written nowhere, exit 1 if the page is out of date).
+status, findings and filter blocks of docs/results.md, between their ``<!-- status -->``, ``<!-- findings -->`` and
+``<!-- filter -->`` markers, rewritten in place by ``safemanip bench findings`` (``--check``: written nowhere, exit 1 if the page is out of date).
 
 A verdict needs every training seed of the benchmark on both sides of every comparison, and every cell the finding
 compares in its sweep spec (``evaluation/sweeps/NAME.json``) measured; until then the finding says what it still
@@ -242,4 +242,17 @@ def render(doc: Path, bench: Benchmark, policies: Path, results: Path) -> tuple[
                             f"with --results")
     text = Path(doc).read_text()
     stored = Stored(Path(results), len(bench.seeds))
-    return text, rewrite(rewrite(text, "status", status(bench, policies), doc), "findings", table(stored), doc)
+    page = rewrite(rewrite(text, "status", status(bench, policies), doc), "findings", table(stored), doc)
+    return text, rewrite(page, "filter", filter_table(stored), doc)
+
+
+def filter_table(stored: Stored) -> str:
+    """The safety filter's checks on every cell of the sweeps run without and with it (``filter_checks.py``)."""
+    from safemanip.bench import filter_checks
+
+    rows, expected = [], {}
+    for sweep, folder, experiment in filter_checks.FILTER_SWEEPS:
+        rows += filter_checks.rows(load_results(stored.results / folder), experiment)
+        expected[experiment] = len({filter_checks.method(c) for c in cells_of(load_config(sweep))
+                                    if c.algorithm != "planner"})
+    return filter_checks.table(rows, expected, stored.needed)
