@@ -233,7 +233,9 @@ def test_a_sweep_name_never_writes_outside_the_output_folder(capsys, tmp_path):
 
 
 def test_two_policies_of_the_same_k_are_both_shown(tmp_path):
-    from safemanip.evaluation.sweep import cells_of, load_config, markdown_table
+    from safemanip.evaluation.sweep.grid import cells_of
+    from safemanip.evaluation.sweep.render import markdown_table
+    from safemanip.evaluation.sweep.spec import load_config
 
     rarl = make_policy(tmp_path / "rarl-k2-conservative.safetensors", 2)
     vanilla = make_policy(tmp_path / "vanilla-k2-conservative.safetensors", 2)
@@ -241,30 +243,30 @@ def test_two_policies_of_the_same_k_are_both_shown(tmp_path):
     cfg = load_config(str(path))
     cells = cells_of(cfg)
     assert len(cells) == 2
-    results = [{"cell": {**cell.__dict__}, "summary": fake_summary(rate)} for cell, rate in zip(cells, (0.25, 0.75))]
+    results = [{"cell": cell.record(), "summary": fake_summary(rate)} for cell, rate in zip(cells, (0.25, 0.75))]
     table = markdown_table(cfg, results)
     assert "25.0 [" in table and "75.0 [" in table  # one row each, neither hidden behind the other
     assert "rarl-k2-conservative" in table and "vanilla-k2-conservative" in table
 
 
 def test_a_damaged_or_deep_cell_result_is_redone_not_fatal(capsys, tmp_path):
-    from dataclasses import asdict
-
-    from safemanip.evaluation.sweep import _done, cells_of, load_config, load_results
+    from safemanip.evaluation.sweep.grid import cells_of
+    from safemanip.evaluation.sweep.spec import load_config
+    from safemanip.evaluation.sweep.store import is_done, load_results
 
     cfg = load_config(str(_spec(tmp_path)))
     (cell,) = cells_of(cfg)
     cells = tmp_path / "o" / "cells"
     cells.mkdir(parents=True)
     path = cells / f"{cell.id}.json"
-    for text in (DEEP, json.dumps({"cell": asdict(cell), "summary": {"success": 5}}), json.dumps([1, 2]),
-                 json.dumps({"cell": {**asdict(cell), "k": "2"}, "summary": fake_summary(0.5)})):
+    for text in (DEEP, json.dumps({"cell": cell.record(), "summary": {"success": 5}}), json.dumps([1, 2]),
+                 json.dumps({"cell": {**cell.record(), "k": "2"}, "summary": fake_summary(0.5)})):
         path.write_text(text)
-        assert not _done(path, cell)
+        assert not is_done(path, cell)
         assert load_results(tmp_path / "o") == []
     assert "ignoring unreadable result" in capsys.readouterr().err
-    path.write_text(json.dumps({"cell": asdict(cell), "summary": fake_summary(0.5)}))
-    assert _done(path, cell) and len(load_results(tmp_path / "o")) == 1
+    path.write_text(json.dumps({"cell": cell.record(), "summary": fake_summary(0.5)}))
+    assert is_done(path, cell) and len(load_results(tmp_path / "o")) == 1
 
 
 # ------------------------------------------------------------------------------------------ 3. resume

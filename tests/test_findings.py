@@ -10,7 +10,7 @@ from types import SimpleNamespace
 from safemanip.bench import findings
 from safemanip.bench.verdict import compare, difference, per_seed, verdict
 from safemanip.evaluation.stats import wilson_interval
-from safemanip.evaluation.sweep import _pooled_entry
+from safemanip.evaluation.sweep.pooling import pooled_entry
 from conftest import ROOT, run_cli
 
 DOC = ROOT / "docs" / "results.md"
@@ -19,7 +19,7 @@ DOC = ROOT / "docs" / "results.md"
 def method(*rates, n=1000):
     """A method's result pooled over training seeds of these success rates (n episodes each), as pool_seeds makes."""
     counts = [round(r * n) for r in rates]
-    e = _pooled_entry([{"rate": c / n} for c in counts], counts, [n] * len(counts))
+    e = pooled_entry([{"rate": c / n} for c in counts], counts, [n] * len(counts))
     return {"summary": {"success": e, "categories": {"top_box": e}, "episodes": n * len(rates),
                         "seeds": list(range(len(rates)))}, "cell": {}}
 

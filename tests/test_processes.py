@@ -281,7 +281,8 @@ def test_a_worker_whose_start_up_data_is_cut_off_exits_without_a_traceback():
 
 # ------------------------------------------------------------------------------------------ sweeps: locks, kills, resume
 def _cells(spec: Path) -> list[str]:
-    from safemanip.evaluation.sweep import cells_of, load_config
+    from safemanip.evaluation.sweep.grid import cells_of
+    from safemanip.evaluation.sweep.spec import load_config
 
     return [c.id for c in cells_of(load_config(str(spec)))]
 

@@ -1,33 +1,35 @@
 """Sweeps: shipped configs, cell grid, resume (a stored cell is not rerun), missing policies, rendering."""
 
 import json
-from dataclasses import asdict
 from pathlib import Path
 
 import pytest
 
-from safemanip.evaluation.sweep import SweepError, available, cells_of, load_config, render, run_sweep
+from safemanip.evaluation.sweep.grid import Cell, PlannerCell, cells_of
+from safemanip.evaluation.sweep.render import render
+from safemanip.evaluation.sweep.runner import run_sweep
+from safemanip.evaluation.sweep.spec import SweepError, available, load_config
 from conftest import ROOT, fake_summary, make_policy
 
 
 def test_shipped_sweeps_load_and_form_the_paper_grids():
     assert {"fig4", "fig5", "fig6", "table1", "table2"} <= set(available())
     fig5 = cells_of(load_config("fig5"))
-    policies = [c for c in fig5 if c.algorithm != "planner"]
-    assert all(c.k <= c.n_objects for c in fig5)
+    policies = [c for c in fig5 if isinstance(c, Cell)]
+    assert all(c.k <= c.n_objects for c in policies)
     assert {c.selector for c in policies if c.k < c.n_objects} == {"static-knn", "dynamic-knn"}
     assert {c.selector for c in policies if c.k == c.n_objects} == {"full"}
     assert {c.train_seed for c in policies} == {0, 1, 2} and {c.variant for c in policies} == {"", "selaware"}
     per_seed = 2 * (4 + 3 + 2 + 1) + 4 + 2 * (4 + 3 + 2 + 1) + 3  # paper's way: k<N x 2 selectors + full per N; selaware
     assert len(policies) == 3 * per_seed
-    assert sorted(c.n_objects for c in fig5 if c.algorithm == "planner") == [3, 4, 5, 6]  # the bound on each N
+    assert sorted(c.n_objects for c in fig5 if isinstance(c, PlannerCell)) == [3, 4, 5, 6]  # the bound on each N
     fig6 = cells_of(load_config("fig6"))
     assert {c.n_objects for c in fig6} == {6}
     assert {c.id for c in fig6} <= {c.id for c in fig5}  # the same cells: fig6 draws fig5's results folder
     assert all(c.episodes == 1000 for c in fig5 + fig6)
     assert cells_of(load_config("fig5"), episodes=10)[0].episodes == 10
     table1 = cells_of(load_config("table1"))
-    assert {c.policy for c in table1 if c.algorithm == "planner"} == {"planner-all", "planner-fragile"}
+    assert {c.avoid for c in table1 if isinstance(c, PlannerCell)} == {"all", "fragile"}
     assert all(c.scenes == "gate_share=1.0,layout=gate" for c in table1)
 
 
@@ -59,7 +61,7 @@ def test_resume_skips_stored_cells_and_reports_missing_policies(tmp_path):
     cells = cells_of(load_config(name))
     static = next(c for c in cells if c.selector == "static-knn" and c.k == 2)
     (out / "cells").mkdir(parents=True)
-    stored = {"cell": asdict(static), "summary": fake_summary(0.5)}
+    stored = {"cell": static.record(), "summary": fake_summary(0.5)}
     (out / "cells" / f"{static.id}.json").write_text(json.dumps(stored))
 
     logs = []
@@ -84,9 +86,10 @@ def test_render_only_uses_stored_results(tmp_path, name):
     cfg = load_config(name)
     results = []
     for i, cell in enumerate(cells_of(cfg)):
-        fails = {"collision_unselected": 10 if cell.selector == "static-knn" else 3, "top_box": 5,
+        static = isinstance(cell, Cell) and cell.selector == "static-knn"
+        fails = {"collision_unselected": 10 if static else 3, "top_box": 5,
                  "collision_selected": 7}
-        results.append({"cell": asdict(cell), "summary": fake_summary(0.3 + 0.05 * (i % 5), **fails)})
+        results.append({"cell": cell.record(), "summary": fake_summary(0.3 + 0.05 * (i % 5), **fails)})
     root = tmp_path / name
     (root / "cells").mkdir(parents=True)
     for r in results:
@@ -100,7 +103,7 @@ def test_render_only_uses_stored_results(tmp_path, name):
     assert table.count("\n| rarl-") + table.count("\n| vanilla-") == len(policies)  # one row per cell and seed
     assert "(reference)" in table and "(bound)" not in table  # the planner's row in the pivot: not an upper bound
     assert "{" in table and "with training seeds as the unit" in table  # the seed-level interval beside Wilson's
-    if cfg["figure"] in ("fig4", "fig5", "fig6"):
+    if cfg.figure in ("fig4", "fig5", "fig6"):
         png = Path(status["figure"])
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
     else:
@@ -113,21 +116,22 @@ def test_render_with_no_results_says_how_to_get_them(tmp_path):
 
 
 def test_cells_that_query_the_semantic_backend_go_stale_with_its_version(tmp_path):
-    from safemanip.evaluation.sweep import _done
+    from safemanip.evaluation.sweep.store import is_done
     from safemanip.semantics.semantic_backend import DEFAULT_EXAMPLES
 
-    cells = {(c.selector, c.constraints): c for c in cells_of(load_config("table2"), episodes=10) if c.k == 2}
+    cells = {(c.selector, c.constraints): c for c in cells_of(load_config("table2"), episodes=10)
+             if isinstance(c, Cell) and c.k == 2}
     vlm_cell, plain_cell = cells[("dynamic-vlm", "vlm")], cells[("dynamic-knn", "conservative")]
     assert vlm_cell.vlm == f"semantic:{DEFAULT_EXAMPLES}" and plain_cell.vlm is None
     path = tmp_path / "cell.json"
-    old = {**asdict(vlm_cell), "vlm": "semantic:class_examples_v2.json"}
+    old = {**vlm_cell.record(), "vlm": "semantic:class_examples_v2.json"}
     path.write_text(json.dumps({"cell": old, "summary": fake_summary(0.5)}))
-    assert not _done(path, vlm_cell)  # a result of an older classifier is redone
-    legacy = {k: v for k, v in asdict(plain_cell).items() if k != "vlm"}  # stored before the field existed
+    assert not is_done(path, vlm_cell)  # a result of an older classifier is redone
+    legacy = {k: v for k, v in plain_cell.record().items() if k != "vlm"}  # stored before the field existed
     path.write_text(json.dumps({"cell": legacy, "summary": fake_summary(0.5)}))
-    assert _done(path, plain_cell)
-    path.write_text(json.dumps({"cell": {k: v for k, v in asdict(vlm_cell).items() if k != "vlm"}, "summary": fake_summary(0.5)}))
-    assert not _done(path, vlm_cell)
+    assert is_done(path, plain_cell)
+    path.write_text(json.dumps({"cell": {k: v for k, v in vlm_cell.record().items() if k != "vlm"}, "summary": fake_summary(0.5)}))
+    assert not is_done(path, vlm_cell)
 
 
 def test_printed_train_commands_parse_and_name_the_benchmark_run():
@@ -170,9 +174,9 @@ def test_a_sweep_renders_only_its_own_cells_from_a_shared_folder(tmp_path):
     root = tmp_path / "fig5"
     (root / "cells").mkdir(parents=True)
     for cell in cells_of(load_config("fig5")):
-        if cell.k in (2, 6) and "selaware" not in cell.policy:
+        if isinstance(cell, PlannerCell) or cell.k in (2, 6) and "selaware" not in cell.policy:
             summary = fake_summary(0.5 if cell.n_objects == 6 else 0.9, n=100)
-            (root / "cells" / f"{cell.id}.json").write_text(json.dumps({"cell": asdict(cell), "summary": summary}))
+            (root / "cells" / f"{cell.id}.json").write_text(json.dumps({"cell": cell.record(), "summary": summary}))
     status = run_sweep("fig6", out=str(root), render_only=True, log=lambda s: None)
     table = Path(status["table"]).read_text()
     rows = [line for line in table.splitlines() if line.startswith("| rarl-")]
@@ -194,11 +198,13 @@ def test_only_runs_the_matching_cells_and_a_pattern_matching_nothing_is_an_error
 
 
 def test_pooled_cells_carry_a_seed_level_interval_shown_in_braces():
-    from safemanip.evaluation.sweep import markdown_table, pool_seeds
+    from safemanip.evaluation.sweep.pooling import pool_seeds
+    from safemanip.evaluation.sweep.render import markdown_table
 
     cfg = load_config("fig4")
-    results = [{"cell": asdict(c), "summary": fake_summary(rate, n=1000)}
-               for c, rate in zip([c for c in cells_of(cfg) if c.algorithm == "rarl" and c.n_objects == 2],
+    results = [{"cell": c.record(), "summary": fake_summary(rate, n=1000)}
+               for c, rate in zip([c for c in cells_of(cfg) if isinstance(c, Cell) and c.algorithm == "rarl"
+                                   and c.n_objects == 2],
                                   (0.70, 0.85, 0.78))]
     (pooled,) = pool_seeds(results)
     entry = pooled["summary"]["success"]
@@ -229,7 +235,7 @@ def test_a_policy_whose_metadata_contradicts_its_name_is_refused_before_any_cell
 
 
 def test_every_identity_field_of_the_cell_id_is_checked(tmp_path):
-    from safemanip.evaluation.sweep import check_policies
+    from safemanip.evaluation.sweep.grid import check_policies
     from safemanip.rl.policy_index import PACKAGE_POLICIES
 
     renamed = tmp_path / "vanilla-k2-conservative-selaware-s1.safetensors"
@@ -256,7 +262,7 @@ def test_a_sweep_measures_each_cell_with_and_without_a_safety_filter(tmp_path):
     assert "shield" not in plain.id and next(c for c in cells if c.shield).id == plain.id + "__shield-brake"
     out = tmp_path / "out"
     (out / "cells").mkdir(parents=True)
-    old = {k: v for k, v in asdict(plain).items() if k != "shield"}  # as stored before the field existed
+    old = {k: v for k, v in plain.record().items() if k != "shield"}  # as stored before the field existed
     (out / "cells" / f"{plain.id}.json").write_text(json.dumps({"cell": old, "summary": fake_summary(0.5)}))
     status = run_sweep(str(spec), out=str(out), workers=1, progress=False, log=lambda s: None)
     assert status["done"] == [plain.id] and status["ran"] == [plain.id + "__shield-brake"]
@@ -268,3 +274,77 @@ def test_a_sweep_measures_each_cell_with_and_without_a_safety_filter(tmp_path):
     spec.write_text(json.dumps(bad))
     with pytest.raises(SweepError, match="unknown shield 'airbag'"):
         load_config(str(spec))
+
+
+def test_a_spec_is_checked_once_into_a_typed_frozen_sweep_spec(tmp_path):
+    from dataclasses import FrozenInstanceError
+
+    from safemanip.evaluation.sweep.spec import SweepSpec
+
+    table2 = load_config("table2")
+    assert isinstance(table2, SweepSpec) and table2.folder == "gate/table2" and table2.seed == 46
+    assert table2.semantics is None and all(p.semantics for p in table2.policies)  # each policy gives its own
+    assert ("dynamic-vlm", "vlm") in table2.pairs and table2.planners == ("all", "fragile")
+    assert table2.scenes.label() == "gate_share=1.0,layout=gate" and table2.table.rows == ("k", "semantics")
+    with pytest.raises(FrozenInstanceError):
+        table2.episodes = 10  # read once, never changed afterwards
+    raw = json.loads(Path(_config(tmp_path, ["policies/rarl-k2-conservative-s0.safetensors"])).read_text())
+    mini = SweepSpec.from_json(raw, "mini")
+    assert mini.pairs == (("static-knn", "conservative"), ("dynamic-knn", "conservative"))
+    assert mini.folder == mini.title == "mini" and mini.shields == (None,) and mini.scenes.label() is None
+    with pytest.raises(SweepError, match=r"sweep mini: episodes must be an integer 1\.\.100000, got 0; unknown "
+                                         r"selector 'nearest'"):
+        SweepSpec.from_json({**raw, "episodes": 0, "selectors": ["nearest"]}, "mini")
+
+
+def test_a_planner_row_is_not_a_policy_cell_but_is_stored_like_one():
+    from safemanip.evaluation.sweep.grid import RECORD_FIELDS, check_policies
+    from safemanip.evaluation.sweep.spec import CELL_FIELDS
+
+    cells = cells_of(load_config("table1"))
+    planners = [c for c in cells if isinstance(c, PlannerCell)]
+    assert len(planners) == 4 and not any(isinstance(c, Cell) for c in planners)
+    row = next(c for c in planners if c.avoid == "all" and c.semantics == "2 fragile, 3 durable")
+    assert not hasattr(row, "k") and not hasattr(row, "train_command")  # no policy, no training
+    record = row.record()
+    assert tuple(record) == RECORD_FIELDS == CELL_FIELDS  # the format every stored cell has (and a table may name)
+    assert record["algorithm"] == "planner" and record["policy"] == "planner-all" and record["k"] == 5
+    assert row.id == ("planner-all__N5__2-fragile-3-durable__full__ground-truth__ground-truth__"
+                      "gate-share-1.0-layout-gate")
+    assert (ROOT / "results" / "gate" / "table1" / "cells" / f"{row.id}.json").is_file()  # the stored result's name
+    check_policies(planners, "table1")  # no policy file to check
+
+
+def test_a_cell_identity_is_read_from_the_policy_metadata_and_from_the_name_only_for_a_missing_file(tmp_path):
+    from safemanip.evaluation.sweep.grid import check_policies
+
+    # a k = 2 policy under a k = 3 name: its cells are those of k = 2 (so N = 2 is measured), its ids keep the name
+    misnamed = make_policy(tmp_path / "rarl-k3-conservative.safetensors", 2)
+    missing = str(tmp_path / "vanilla-k3-all-s4.safetensors")
+    raw = json.loads(Path(_config(tmp_path, [misnamed, missing])).read_text())
+    spec = tmp_path / "identity.json"
+    spec.write_text(json.dumps({**raw, "n_objects": [2, 3], "selectors": ["static-knn"]}))
+    cells = cells_of(load_config(str(spec)))
+    mine = [c for c in cells if c.policy == misnamed]
+    assert [(c.k, c.n_objects) for c in mine] == [(2, 2), (2, 3)]
+    assert mine[0].id.startswith("rarl-k3-conservative__N2__")
+    (named,) = [c for c in cells if c.policy == missing]  # k = 3 from the name: N = 3 only
+    assert (named.algorithm, named.k, named.policy_constraints, named.train_seed) == ("vanilla", 3, "all", 4)
+    with pytest.raises(SweepError, match="its metadata says k=2, its name k=3"):
+        check_policies(cells, "identity")
+
+
+def test_pooled_filter_cells_keep_the_share_of_steps_the_filter_overrode():
+    """Pooled over seeds, the filter's overrides are every seed's overridden steps over every seed's steps (they
+    used to be dropped, and the table showed 0.0 for every pooled filter row)."""
+    from safemanip.evaluation.sweep.pooling import pool_seeds
+
+    cells = [c for c in cells_of(load_config("fig4-filter")) if isinstance(c, Cell) and c.shield
+             and c.algorithm == "rarl" and c.n_objects == 3]
+    steps = (30_000, 40_000, 50_000)
+    results = [{"cell": c.record(), "summary": {**fake_summary(0.9, n=1000),
+                                                "shield_interventions": {"overrides": s // 10, "steps": s,
+                                                                         "rate": 0.1}}}
+               for c, s in zip(cells, steps)]
+    (pooled,) = pool_seeds(results)
+    assert pooled["summary"]["shield_interventions"] == {"overrides": 12_000, "steps": 120_000, "rate": 0.1}

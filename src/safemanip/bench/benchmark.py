@@ -196,7 +196,7 @@ def _selection(selection, problems: list[str]) -> tuple[int, int]:
 def _reporting(reporting, selection_block: int, problems: list[str]) -> dict:
     """The reporting blocks, each one a shipped sweep's own ("seed" in its spec: the two must agree), none the
     selection block (nothing reported may have been chosen on the episodes it is reported on)."""
-    from safemanip.evaluation.sweep import SweepError, available, load_config
+    from safemanip.evaluation.sweep.spec import SweepError, available, load_config
 
     if not (isinstance(reporting, dict) and reporting):
         problems.append(f"reporting must be an object of shipped sweep names and seed blocks, e.g. {{\"fig4\": 31}}, "
@@ -210,7 +210,7 @@ def _reporting(reporting, selection_block: int, problems: list[str]) -> dict:
             problems.append(f"reporting.{name} is block {block}, the selection block: a policy chosen on these "
                             f"episodes would be reported on them too; give the sweep another block")
         try:
-            spec_block = load_config(name).get("seed", 0)
+            spec_block = load_config(name).seed
         except SweepError as err:
             problems.append(f"reporting.{name}: {err}")
             continue
@@ -248,8 +248,8 @@ def _settings(settings, recipe: dict, problems: list[str]) -> list[Setting]:
 
 def _config_problems(bench: Benchmark, setting: Setting) -> list[str]:
     """What the training config refuses in a setting's first run, and whether the setting's name says what its keys
-    say (the sweeps read a policy's algorithm, k, constraints and training from its file name)."""
-    from safemanip.evaluation.sweep import POLICY_NAME
+    say (a sweep refuses a policy whose metadata contradicts its file name, which makes its cell ids)."""
+    from safemanip.evaluation.sweep.spec import POLICY_NAME
     from safemanip.rl.config import ConfigError
 
     run = Run(setting, bench.seeds[0])
@@ -261,5 +261,5 @@ def _config_problems(bench: Benchmark, setting: Setting) -> list[str]:
     wanted = f"{cfg.algorithm}-k{cfg.k}-{cfg.constraints}{'-selaware' if cfg.selection_aware else ''}"
     if named is None or setting.name != wanted:
         return [f"settings ({setting.name}): its keys make it {wanted!r}; name it so (policy files are named "
-                f"ALGORITHM-kK-CONSTRAINTS[-selaware]-sSEED, and the sweeps read a policy's setting from its name)"]
+                f"ALGORITHM-kK-CONSTRAINTS[-selaware]-sSEED, and a sweep refuses a policy its name contradicts)"]
     return []

@@ -16,7 +16,10 @@ from pathlib import Path
 from safemanip.bench.benchmark import Benchmark
 from safemanip.bench.verdict import compare, entry, seeds, verdict
 from safemanip.evaluation.registry import display_name
-from safemanip.evaluation.sweep import Cell, cells_of, load_config, load_results, pool_seeds
+from safemanip.evaluation.sweep.grid import Cell, cells_of, record_id
+from safemanip.evaluation.sweep.pooling import pool_seeds
+from safemanip.evaluation.sweep.spec import load_config
+from safemanip.evaluation.sweep.store import load_results
 
 DEFAULT_DOC = Path("docs") / "results.md"
 DEFAULT_RESULTS = Path("results")
@@ -44,9 +47,9 @@ class Stored:
         """(cells not measured yet, cells in all) among the sweep spec's cells that a finding compares
         (``wanted(cell)``). Without this a finding whose measured cells all had every seed would read as complete
         while whole policies (say pi_4..pi_6) were still missing from it."""
-        cfg = load_config(sweep)
-        stored = {Cell(**r["cell"]).id for r in load_results(self.results / cfg["folder"])}
-        expected = [c.id for c in cells_of(cfg) if c.algorithm != "planner" and wanted(c)]
+        spec = load_config(sweep)
+        stored = {record_id(r["cell"]) for r in load_results(self.results / spec.folder)}
+        expected = [c.id for c in cells_of(spec) if isinstance(c, Cell) and wanted(c)]
         return sum(1 for c in expected if c not in stored), len(expected)
 
 
@@ -254,5 +257,5 @@ def filter_table(stored: Stored) -> str:
     for sweep, folder, experiment in filter_checks.FILTER_SWEEPS:
         rows += filter_checks.rows(load_results(stored.results / folder), experiment)
         expected[experiment] = len({filter_checks.method(c) for c in cells_of(load_config(sweep))
-                                    if c.algorithm != "planner"})
+                                    if isinstance(c, Cell)})
     return filter_checks.table(rows, expected, stored.needed)

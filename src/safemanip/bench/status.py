@@ -24,12 +24,14 @@ def run_line(record: RunRecord, budget: int) -> str:
 
 
 def sweep_line(name: str, block: int, results: Path) -> str:
-    from safemanip.evaluation.sweep import Cell, cells_of, load_config, load_results
+    from safemanip.evaluation.sweep.grid import cells_of, record_id
+    from safemanip.evaluation.sweep.spec import load_config
+    from safemanip.evaluation.sweep.store import load_results
 
-    cfg = load_config(name)
-    folder = Path(results) / cfg.get("folder", cfg["name"])
-    wanted = {c.id for c in cells_of(cfg)}
-    stored = {Cell(**r["cell"]).id for r in load_results(folder)} & wanted if folder.is_dir() else set()
+    spec = load_config(name)
+    folder = Path(results) / spec.folder
+    wanted = {c.id for c in cells_of(spec)}
+    stored = {record_id(r["cell"]) for r in load_results(folder)} & wanted if folder.is_dir() else set()
     return (f"sweep {name}: {len(stored)} of {len(wanted)} cells stored in {folder} (block {block})"
             + ("" if len(stored) == len(wanted) else f" (run the rest: safemanip bench sweep {name})"))
 

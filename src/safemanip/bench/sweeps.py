@@ -1,5 +1,5 @@
 """``safemanip bench sweep``: the benchmark's reported sweeps, one after another, through the sweep runner
-(``evaluation.sweep.run_sweep``, what ``safemanip sweep NAME`` runs). Each sweep's spec reports on the block
+(``evaluation.sweep.runner.run_sweep``, what ``safemanip sweep NAME`` runs). Each sweep's spec reports on the block
 benchmark.json gives it (checked when the benchmark is loaded)."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ def run_sweeps(bench: Benchmark, names: list[str] | None, log=print, **options) 
     """Run (or resume) each sweep; ``options`` go to ``run_sweep`` (workers, backend, address, render_only,
     progress). Exit code 0, 1 (a cell failed or every cell of a sweep was skipped for missing policies) or 128 + the
     signal that stopped a sweep (the sweeps after it are not started)."""
-    from safemanip.evaluation.sweep import run_sweep
+    from safemanip.evaluation.sweep.runner import run_sweep
 
     names = list(names or bench.reporting)
     unknown = [n for n in names if n not in bench.reporting]

@@ -1,10 +1,10 @@
 """The rule that judges the benchmark: one method against another in one cell (``compare``), and a finding from its
 comparisons (``verdict``). docs/results.md explains it ("How a verdict is reached").
 
-A comparison pools each method's training seeds (``evaluation.sweep.pool_seeds``). One method is better only if both
-tests agree: the 95 % interval of the difference of the two success rates, bootstrapped with training seeds as the
-unit, lies wholly above 0, and its lowest training seed scores at least the other's highest; otherwise the cell is a
-tie. (Until issue 44 the first test was "its pooled Wilson interval lies wholly above the other's"; the rule changed
+A comparison pools each method's training seeds (``evaluation.sweep.pooling.pool_seeds``). One method is better only
+if both tests agree: the 95 % interval of the difference of the two success rates, bootstrapped with training seeds as
+the unit, lies wholly above 0, and its lowest training seed scores at least the other's highest; otherwise the cell is
+a tie. (Until issue 44 the first test was "its pooled Wilson interval lies wholly above the other's"; the rule changed
 after the cells were measured, see docs/results.md.) A finding holds if its method wins at least one of its
 comparisons and loses none; it is within the interval if every comparison is a tie; it does not hold if the method
 loses at least one and wins none; mixed otherwise.

@@ -109,7 +109,7 @@ def _add_common(p: argparse.ArgumentParser, command: str) -> None:
 
 
 def register(sub) -> None:
-    from safemanip.evaluation.sweep import available
+    from safemanip.evaluation.sweep.spec import available
 
     bench = sub.add_parser("bench", help="the paper's benchmark: train, promote, sweep, findings, status",
                            description=DESCRIPTION, epilog=EXAMPLES,

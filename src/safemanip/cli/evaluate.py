@@ -58,7 +58,8 @@ def _cmd_eval(args) -> int:
 
 
 def _cmd_sweep(args) -> int:
-    from safemanip.evaluation.sweep import available, run_sweep
+    from safemanip.evaluation.sweep.runner import run_sweep
+    from safemanip.evaluation.sweep.spec import available
 
     if args.list or not args.name:
         if not args.list:

@@ -106,7 +106,7 @@ _ORACLE_NAMES = {"privileged": "privileged (nearest fragile)",
 def display_name(name: str, vlm: str | None = None) -> str:
     """How tables, figures and findings name an object or constraint selector: by what produced its answers, so
     that a row made by the offline name classifier is never called a VLM. ``vlm`` is the cell's backend identity
-    (``evaluation.sweep.vlm_identity``: 'semantic:FILE' offline, 'openai:MODEL' for a served model)."""
+    (``evaluation.sweep.grid.vlm_identity``: 'semantic:FILE' offline, 'openai:MODEL' for a served model)."""
     if name in _VLM_NAMES and vlm and vlm.startswith("openai:"):
         return f"{_VLM_NAMES[name]} (openai: {vlm.split(':', 1)[1]})"
     return _OFFLINE_NAMES.get(name) or _ORACLE_NAMES.get(name) or name
