@@ -17,8 +17,9 @@ EXAMPLES = """steps, each resumable (what is finished is skipped):
   safemanip bench train --address 10.0.0.5:6379
                                             one Ray task per run on a cluster (runs/bench on a shared filesystem)
   safemanip bench promote                   final or best of each finished run into the policies folder
-  safemanip bench sweep                     the reported sweeps: fig4 fig5 fig6 table1 table2
-  safemanip bench findings                  the status and findings blocks of docs/results.md
+  safemanip bench sweep                     the reported sweeps: fig4 fig5 fig6 table1 table2, and the
+                                            filter's fig4-filter table1-filter
+  safemanip bench findings                  the status, findings and filter blocks of docs/results.md
   safemanip bench status                    one line per run and per sweep
 """
 
