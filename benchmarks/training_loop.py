@@ -16,6 +16,19 @@ Rows:
                      counters every ``log_every_s``, 10 s in the benchmark's recipe).
   loop, whole run    updates over the run's whole wall time, start-up and warm-up included (for comparison).
 
+Where the loop's time goes (Linux for the first table):
+
+  CPU time           per process of the run, sampled from /proc once a second: the learner's process (and the part
+                     of it outside its main thread), the rollout worker(s), the evaluation process; CPU seconds and
+                     cores used over the run's wall time (start-up and the final evaluation included).
+  loop's timing      means over training of the loop's own scalars (``rl/train.py``'s ``log``): the share of time the
+                     learner waited for data and the worker(s) waited for the learner (ahead of the data rate), and
+                     the workers' CPU ms per env step, with the update rate it allows at most when each worker has a
+                     whole core (``benchmarks/rollout_profile.py`` splits that cost: physics, env Python, resets,
+                     the collector's own work). A loop short of the bar whose learner waits for data while its
+                     worker(s) stay below one core is starved of CPU (the evaluation process, a busy machine); with
+                     its worker(s) at one core it is bound by the env's cost per step.
+
 The run is a real ``safemanip train`` with the config's rollout workers, evaluations and checkpoints, in a process of
 its own (the learner measurements are made in this one, not while it runs); ``--steps`` sets its budget, so a short
 smoke run is possible (the worst window needs 30 s of training). The table names the CPU (its model name) and
@@ -29,6 +42,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import os
 import platform
 import statistics
 import subprocess
@@ -100,6 +114,28 @@ def log_points(run: Path) -> list[tuple[float, int]]:
         return [(float(r["wall_s"]), int(r["updates"])) for r in csv.DictReader(f) if r["name"] == "perf/updates_per_s"]
 
 
+def waiting(run: Path) -> dict:
+    """The training phase's means of the loop's own timing scalars (``rl/train.py``'s ``log``): the share of time the
+    learner waited for data and the rollout workers for the learner, and the workers' CPU ms per env step (weighted
+    by the steps of each interval). Missing (an older run, or a backend that does not measure them): None."""
+    rows: dict[str, list[tuple[int, int, float]]] = {}
+    with open(run / "scalars.csv", newline="") as f:
+        for r in csv.DictReader(f):
+            if r["name"] in ("perf/learner_waiting", "perf/rollout_waiting", "perf/rollout_cpu_ms_per_step"):
+                rows.setdefault(r["name"], []).append((int(r["env_steps"]), int(r["updates"]), float(r["value"])))
+    out: dict = {}
+    for name, values in rows.items():
+        training = [(prev[0], v) for prev, v in zip(values, values[1:]) if v[1] > 0]  # (steps before, row)
+        if not training:
+            continue
+        if name == "perf/rollout_cpu_ms_per_step":
+            weights = [v[0] - before for before, v in training]
+            out[name] = sum(w * v[2] for w, (_, v) in zip(weights, training)) / max(1, sum(weights))
+        else:
+            out[name] = statistics.mean(v[2] for _, v in training)
+    return out
+
+
 def loop_rates(points: list[tuple[float, int]]) -> dict:
     """The training phase's mean rate and its slowest window of at least ``WINDOW_S`` seconds."""
     training = [p for p in points if p[1] > 0]
@@ -116,6 +152,87 @@ def loop_rates(points: list[tuple[float, int]]) -> dict:
         if out["worst"] is None or rate < out["worst"]:
             out.update(worst=rate, worst_at=ta)
     return out
+
+
+class CpuSampler:
+    """CPU seconds of a process and its descendants, by role, from /proc (Linux; elsewhere nothing is reported).
+
+    Each process's last reading is kept, so a process that has ended still counts with what it used."""
+
+    def __init__(self, root: int):
+        self.root = root
+        self.tick = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+        self.seen: dict[int, tuple[str, float]] = {}  # pid -> (role, CPU s)
+        self.learner_main = 0.0  # the learner's main thread
+
+    def _stat(self, path: str) -> tuple[str, float] | None:
+        try:
+            text = Path(path).read_text()
+        except OSError:
+            return None
+        comm, rest = text[text.index("(") + 1:text.rindex(")")], text[text.rindex(")") + 2:].split()
+        return comm, (int(rest[11]) + int(rest[12])) / self.tick  # utime + stime
+
+    def _children(self, pid: int) -> list[int]:
+        out = []
+        for task in Path(f"/proc/{pid}/task").glob("*"):
+            try:
+                out += [int(c) for c in (task / "children").read_text().split()]
+            except (OSError, ValueError):
+                pass
+        return out
+
+    def _role(self, pid: int, comm: str) -> str:
+        if pid == self.root:
+            return "learner process"
+        if comm == "safemanip-eval":
+            return "evaluation process"
+        try:
+            cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            cmdline = ""
+        if "resource_tracker" in cmdline or "forkserver" in cmdline:
+            return "multiprocessing helpers"
+        return "rollout worker(s)" if "multiprocessing" in cmdline else "other"
+
+    def sample(self) -> None:
+        todo, done = [self.root], set()
+        while todo:
+            pid = todo.pop()
+            if pid in done:
+                continue
+            done.add(pid)
+            stat = self._stat(f"/proc/{pid}/stat")
+            if stat is None:
+                continue
+            # asked again each time: the evaluation process names itself only once it has started
+            role = "learner process" if pid == self.root else self._role(pid, stat[0])
+            self.seen[pid] = (role, stat[1])
+            if pid == self.root:
+                main = self._stat(f"/proc/{pid}/task/{pid}/stat")
+                if main is not None:
+                    self.learner_main = main[1]
+            todo += self._children(pid)
+
+    def report(self, wall: float, env_steps: int) -> None:
+        if not self.seen:
+            return
+        by_role: dict[str, list[float]] = {}
+        for role, seconds in self.seen.values():
+            by_role.setdefault(role, []).append(seconds)
+        print(f"\nCPU time over the whole run ({wall:.0f} s wall; start-up, warm-up and final evaluation included):")
+        print("| process | CPU s | cores used |")
+        print("|---|---|---|")
+        for role in ("learner process", "rollout worker(s)", "evaluation process", "multiprocessing helpers", "other"):
+            if role in by_role:
+                total = sum(by_role[role])
+                print(f"| {role} ({len(by_role[role])}) | {total:.0f} | {total / wall:.2f} |")
+                if role == "learner process":
+                    print(f"| learner process, outside its main thread | {total - self.learner_main:.0f} | "
+                          f"{(total - self.learner_main) / wall:.2f} |")
+        workers = sum(by_role.get("rollout worker(s)", []))
+        if workers > 0:
+            print(f"rollout workers: {env_steps / workers:.0f} env steps per CPU-second (their start-up included)")
 
 
 def main() -> None:
@@ -147,7 +264,15 @@ def main() -> None:
                "--total-env-steps", str(cfg.total_env_steps), "--precision", cfg.precision, "--no-progress"]
     t0 = time.perf_counter()
     with open(run.parent / f"{run.name}.log", "w") as log:
-        code = subprocess.run(command, stdout=log, stderr=subprocess.STDOUT).returncode
+        proc = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
+        cpu = CpuSampler(proc.pid)
+        while proc.poll() is None:
+            cpu.sample()
+            try:
+                proc.wait(timeout=1.0)
+            except subprocess.TimeoutExpired:
+                pass
+        code = proc.returncode
     wall = time.perf_counter() - t0
     if code != 0:
         sys.exit(f"the run failed with exit code {code}; see {run.parent / f'{run.name}.log'}")
@@ -174,6 +299,21 @@ def main() -> None:
                                           else " (training shorter than 30 s)")
     row(worst, loop["worst"])
     row("loop, whole run (start-up, warm-up, final evaluation included)", summary["updates"] / wall)
+    cpu.report(wall, summary["env_steps"])
+    timing = waiting(run)
+    if timing:
+        print("\nthe loop's own timing over training (scalars.csv, perf/*):")
+        if "perf/learner_waiting" in timing:
+            print(f"  learner waiting for data: {100 * timing['perf/learner_waiting']:.0f}% of the time")
+        if "perf/rollout_waiting" in timing:
+            print(f"  rollout worker(s) waiting for the learner (ahead of the data rate): "
+                  f"{100 * timing['perf/rollout_waiting']:.0f}% of the time")
+        if "perf/rollout_cpu_ms_per_step" in timing:
+            ms = timing["perf/rollout_cpu_ms_per_step"]
+            ceiling = cfg.n_collectors * 1000 / ms / cfg.env_steps_per_update
+            print(f"  rollout worker CPU: {ms:.2f} ms per env step: with a whole core each, {cfg.n_collectors} worker(s) "
+                  f"feed at most {ceiling:.0f} updates/s ({ceiling / ref:.2f}x the learner alone) at "
+                  f"{cfg.env_steps_per_update:g} env steps per update")
     if loop["mean"] is not None and loop["worst"] is not None:
         met = loop["mean"] >= 0.9 * ref and loop["worst"] >= 0.7 * ref
         print(f"\nissue 42's bar (mean >= 0.9x, every 30 s window >= 0.7x the learner alone): "

@@ -140,11 +140,14 @@ class RolloutWorker:
 def run_collector(worker: int, env: EnvBuilder, seed: int, n_envs: int, data_q, weights_q, stop, counters,
                   random_steps: int, noise_std: float, learning_starts: int, steps_per_update: float,
                   noise_per_episode: bool = False, noise_color: float = 0.0) -> None:
-    """Worker process main loop. ``counters[0]`` is the total env steps (all workers), ``counters[1]`` learner updates."""
+    """Worker process main loop. ``counters[0]`` is the total env steps (all workers), ``counters[1]`` learner updates;
+    ``counters[2]`` and ``counters[3]`` the microseconds the workers spent waiting for the learner (ahead of the data
+    rate) and their CPU time since they started stepping (``LocalPool.activity``)."""
     import multiprocessing as mp
 
     rollout = RolloutWorker(env, seed, worker, n_envs, noise_std, noise_per_episode, noise_color)
     parent = mp.parent_process()
+    cpu_published = time.process_time()
     while not stop.is_set():
         if parent is not None and not parent.is_alive():  # the learner was killed: do not linger as an orphan
             return
@@ -155,13 +158,20 @@ def run_collector(worker: int, env: EnvBuilder, seed: int, n_envs: int, data_q, 
             pass
         # do not run ahead of the learner by more than the configured data rate
         if counters[0] > allowed_env_steps(counters[1], learning_starts, steps_per_update):
+            slept = time.perf_counter()
             time.sleep(0.002)
+            with counters.get_lock():
+                counters[2] += int(1e6 * (time.perf_counter() - slept))
             continue
         taken = rollout.step_all(counters[0] < random_steps)
         with counters.get_lock():
             counters[0] += taken
         if rollout.pending() >= CHUNK:
             data_q.put(rollout.take())
+            cpu = time.process_time()
+            with counters.get_lock():
+                counters[3] += int(1e6 * (cpu - cpu_published))
+            cpu_published = cpu
 
 
 class LocalPool:
@@ -178,7 +188,7 @@ class LocalPool:
         self.data_q = ctx.Queue(maxsize=64)
         self.weights_qs = [ctx.Queue(maxsize=2) for _ in range(cfg.n_collectors)]
         self.stop = ctx.Event()
-        self.counters = ctx.Array("q", [env_steps, updates])
+        self.counters = ctx.Array("q", [env_steps, updates, 0, 0])  # see run_collector
         self.workers = [ctx.Process(target=run_as_worker, daemon=True,  # the workers die with this process
                                     args=(os.getpid(), run_collector, w, build, seed, cfg.envs_per_collector,
                                           self.data_q, self.weights_qs[w], self.stop, self.counters, cfg.random_steps,
@@ -200,6 +210,12 @@ class LocalPool:
 
     def set_updates(self, updates: int) -> None:
         self.counters[1] = updates
+
+    def activity(self) -> dict[str, float]:
+        """Seconds the workers (summed) waited for the learner, ahead of the data rate, and their CPU seconds, since
+        they started stepping: the training loop logs them per interval (who waits for whom, and whether a worker
+        gets a whole core)."""
+        return {"rollout_wait_s": self.counters[2] / 1e6, "rollout_cpu_s": self.counters[3] / 1e6}
 
     def broadcast(self, arrays) -> None:
         for q in self.weights_qs:
@@ -250,6 +266,9 @@ class RayPool:
 
     def set_updates(self, updates: int) -> None:
         self.updates = updates
+
+    def activity(self) -> dict[str, float]:
+        return {}  # not measured for Ray actors
 
     def dead(self) -> int | None:
         """Ray reports a dead actor as an error from ``get`` (``ray.get`` raises): nothing to poll."""
@@ -315,6 +334,9 @@ class InlinePool:
 
     def set_updates(self, updates: int) -> None:
         self.updates = updates
+
+    def activity(self) -> dict[str, float]:
+        return {}  # the workers step when the loop asks: they never wait, and share the learner's CPU
 
     def dead(self) -> int | None:
         return None

@@ -293,6 +293,7 @@ class Trainer:
         self.learning_rate = cfg.learning_rate_at(0.0)
         self.interrupted = self.worker_failed = None
         self.pool = self.log_file = self.bar = self.evaluator = None
+        self.learner_idle_s = 0.0  # time the loop slept with no update allowed and no data in (waiting for data)
         self.writer = CheckpointWriter()
         self.start = time.perf_counter()
 
@@ -369,13 +370,16 @@ class Trainer:
         cfg = self.cfg
         last_log = last_eval = last_ckpt = last_alive_check = self.start
         self.steps_at_log, self.updates_at_log = self.env_steps, self.updates
+        self.idle_at_log, self.activity_at_log = self.learner_idle_s, self.pool.activity()
         with stop_on_signals(raise_exc=False) as stopped:
             while not self.done(stopped):
                 got = self.collect()
                 if self.worker_failed:
                     break
                 if not self.update() and got == 0:
+                    slept = time.perf_counter()
                     time.sleep(0.001)
+                    self.learner_idle_s += time.perf_counter() - slept
                 now = time.perf_counter()
                 if now - last_alive_check >= 1.0:  # once a second: off the learner's path
                     # (a worker ended by a SIGTERM to the whole process group is no failure: the run stops for it)
@@ -454,7 +458,17 @@ class Trainer:
 
     def log(self, dt: float) -> None:
         rates = {"perf/env_steps_per_s": (self.env_steps - self.steps_at_log) / dt,
-                 "perf/updates_per_s": (self.updates - self.updates_at_log) / dt}
+                 "perf/updates_per_s": (self.updates - self.updates_at_log) / dt,
+                 "perf/learner_waiting": (self.learner_idle_s - self.idle_at_log) / dt}
+        # who waits for whom: the learner for data (above), the rollout workers for the learner (ahead of the data
+        # rate); and the workers' CPU per env step (a worker with a whole core to itself: 1000 / env_throughput.py's rate)
+        activity, before = self.pool.activity(), self.activity_at_log
+        if "rollout_wait_s" in activity:
+            rates["perf/rollout_waiting"] = (activity["rollout_wait_s"] - before["rollout_wait_s"]) / (
+                dt * self.cfg.n_collectors)
+        if "rollout_cpu_s" in activity and self.env_steps > self.steps_at_log:
+            rates["perf/rollout_cpu_ms_per_step"] = 1e3 * (activity["rollout_cpu_s"] - before["rollout_cpu_s"]) / (
+                self.env_steps - self.steps_at_log)
         n_ep = max(1, len(self.recent_events))
         rollout = {f"rollout/{k}": v / n_ep for k, v in Counter(self.recent_events).items()}
         self.log_file.log({**rates, **self.last_metrics, **rollout, "train/gamma": self.gamma,
@@ -466,6 +480,7 @@ class Trainer:
                 post["eval"] = f"{100 * self.last_eval_result['success']:.0f}%"
             self.bar.set_postfix(post)
         self.steps_at_log, self.updates_at_log = self.env_steps, self.updates
+        self.idle_at_log, self.activity_at_log = self.learner_idle_s, activity
 
     def evaluate(self) -> None:
         """Held-out episodes with a copy of the current actor, beside training (``inline``: here and now)."""
