@@ -45,7 +45,7 @@ def test_a_setting_pairs_its_cells_by_training_seed_and_is_checked():
     assert knn["cost_checked"] is False and knn["cost_ok"] is None and abs(knn["cost"] - 0.2) < 1e-12
     text = table([privileged, knn], {"Table I": 2}, 3)
     assert "violations at most 1 % in 2 of 2" in text and "at most 3 points in 1 of 1 checked" in text
-    assert "| Table I | 2 fragile, 3 durable, privileged" in text
+    assert "| Table I | 2 fragile, 3 durable, privileged" in text and "0.5 (1.0; 0.0)" in text
 
 
 def test_a_check_that_fails_says_so_and_names_the_worst_setting():

@@ -4,7 +4,8 @@ by ``safemanip bench findings``.
 
 Per method and setting (training seeds pooled), the cell without the filter beside the cell with it: success,
 safety violations of every kind, timeouts and the share of steps the filter overrode the policy. Two checks:
-  - with the filter, violations of every kind are at most 1 % (the mean over training seeds; the worst seed shown);
+  - with the filter, violations of every kind are at most 1 % (the mean over training seeds; the worst seed shown,
+    and the share that is the task policy's own: the top box moved, the box out of the workspace);
   - the success the filter costs is at most 3 points (the mean over seeds), asked of every Fig. 4 cell and of every
     Table I cell whose selector knows the objects' classes (the privileged and semantic selectors, the offline
     proximity ranker too). A kNN cell protects every object, so it stops before a durable blocker it used to push
@@ -25,6 +26,9 @@ FILTER_SWEEPS = (("fig4-filter", "exit/fig4-filter", "Fig. 4"), ("table1-filter"
 """(sweep, its results folder, the experiment it repeats with the filter)."""
 MAX_VIOLATION = 0.01
 MAX_COST = 0.03
+TASK_KINDS = ("top_box", "out_of_workspace")
+"""Violations that are the task policy's (the filter only guards objects; braking mid-pull would drag the top box):
+shown apart, though the check counts every kind."""
 KNOWS_CLASSES = ("privileged", "semantic", "dynamic-vlm")
 """Object selectors (name prefixes) whose classes the filter protects by: the cost check applies to them."""
 
@@ -77,6 +81,7 @@ def rows(results: list[dict], experiment: str) -> list[dict]:
                "success_without": _mean(_rates(off, "success")), "success_with": _mean(_rates(on, "success")),
                "violation_without": _mean(_rates(off, "violation")), "violation_with": _mean(_rates(on, "violation")),
                "violation_with_worst_seed": max(_rates(on, "violation")),
+               "task_violation_with": _mean([sum(r) for r in zip(*(_rates(on, k) for k in TASK_KINDS))]),
                "timeout_with": _mean(_rates(on, "timeout")), "change_ci95": change,
                "overridden": sum(o.get("overrides", 0) for o in overrides) / max(1, sum(o.get("steps", 0)
                                                                                         for o in overrides)),
@@ -128,7 +133,8 @@ def table(stored_rows: list[dict], expected: dict[str, int], seeds_needed: int) 
             text += f" (largest: {_label(worst_c)}, {_pct(worst_c['cost'])} points)"
         lines.append(text + ".")
     lines += ["", "| experiment | setting | success without / with the filter (%) | change {seed interval} | "
-                  "violations without / with (worst seed) | timeouts with | steps overridden | checks |",
+                  "violations without / with (worst seed; of it top box or workspace) | timeouts with | "
+                  "steps overridden | checks |",
               "|---|---|---|---|---|---|---|---|"]
     for r in stored_rows:
         lo, hi = r["change_ci95"]
@@ -139,6 +145,7 @@ def table(stored_rows: list[dict], expected: dict[str, int], seeds_needed: int) 
         lines.append(f"| {r['experiment']} | {_label(r)}{seeds} | {_pct(r['success_without'])} / "
                      f"{_pct(r['success_with'])} | {_pct(-r['cost'])} {{{_pct(lo)}, {_pct(hi)}}} | "
                      f"{_pct(r['violation_without'])} / {_pct(r['violation_with'])} "
-                     f"({_pct(r['violation_with_worst_seed'])}) | {_pct(r['timeout_with'])} | "
+                     f"({_pct(r['violation_with_worst_seed'])}; {_pct(r['task_violation_with'])}) | "
+                     f"{_pct(r['timeout_with'])} | "
                      f"{_pct(r['overridden'])} | {checks} |")
     return "\n".join(lines)
