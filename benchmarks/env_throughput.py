@@ -51,6 +51,7 @@ def env_rate(env: SlideOutEnv, steps: int, rng):
     elapsed = resetting = 0.0
     for i in range(steps):
         action = np.clip(controller.act(info, env) + noise[i], -1, 1)  # the controller is not timed
+        acts[i] = env.data.act  # the set-points the step starts from (the embodiment's controller only reads them)
         t0 = time.perf_counter()
         _, _, term, trunc, info = env.step(action)
         if term or trunc:
@@ -58,9 +59,8 @@ def env_rate(env: SlideOutEnv, steps: int, rng):
             _, info = env.reset()
             resetting += time.perf_counter() - t1
         elapsed += time.perf_counter() - t0
-        # what the embodiment commanded for this step (its phases) and the set-points the step started from
-        ctrls.append(env._bench_phases)
-        acts[i] = env._bench_act
+        # what the embodiment commanded for this step (its phases), copied here: the bookkeeping is not timed
+        ctrls.append(tuple((n, np.array(ctrl, copy=True)) for n, ctrl in env._bench_phases))
         if term or trunc:
             controller.reset()
             starts[i + 1] = _physics_state(env.model, env.data)
@@ -82,14 +82,13 @@ def raw_rate(model, data, ctrls, acts, starts, actuators) -> float:
 
 
 def _record_commands(env: SlideOutEnv) -> None:
-    """Wrap the embodiment's controller so each step's ctrl/act (after the controller ran) are kept."""
+    """Wrap the embodiment's controller so each step's phases are kept (only a reference inside the timed step: the
+    phases' arrays are new each step and never written to, ``env_rate`` copies them after the step)."""
     controller = env.controller
     original = controller.command_velocity
 
     def command_velocity(model, data, binding, velocity, dt):
-        phases = original(model, data, binding, velocity, dt)
-        env._bench_phases = tuple((n, np.array(ctrl, copy=True)) for n, ctrl in phases)
-        env._bench_act = data.act.copy()
+        env._bench_phases = phases = original(model, data, binding, velocity, dt)
         return phases
 
     controller.command_velocity = command_velocity

@@ -119,3 +119,19 @@ def test_a_render_size_within_the_buffer_renders(gl):
         assert frame.shape == (120, 160, 3)
     finally:
         env.close()
+
+
+def test_every_form_of_an_action_steps_the_same(env):
+    """A float32 or float64 vector (the shortcut in ``_action_vector``) steps exactly as the same numbers given as a
+    list, a tuple or a (1, 3) array (the general checks)."""
+    forms = (np.array([0.3, -0.2, 0.1], np.float32), np.array([0.3, -0.2, 0.1], np.float32).astype(np.float64),
+             [float(np.float32(0.3)), float(np.float32(-0.2)), float(np.float32(0.1))],
+             tuple(np.array([0.3, -0.2, 0.1], np.float32).tolist()), np.array([[0.3, -0.2, 0.1]], np.float32))
+    results = []
+    for action in forms:
+        env.reset(seed=4)
+        obs, reward, *_ = env.step(action)
+        results.append((obs, reward))
+    for obs, reward in results[1:]:
+        np.testing.assert_array_equal(obs, results[0][0])
+        assert reward == results[0][1]

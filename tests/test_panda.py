@@ -124,6 +124,22 @@ def test_joint_acceleration_limiter_scales_the_change_and_keeps_its_direction():
     np.testing.assert_allclose(limit_joint_acceleration(np.array([1.2, 0.1]), previous, cap), [1.2, 0.1])
 
 
+def test_speed_scale_is_the_share_of_the_ik_speed_the_limits_let_through():
+    """``binding.speed_scale`` (read by benchmarks/tracking.py) is worked out when asked from the last step's joint
+    velocities: 1 when nothing held the arm back, less once the acceleration limit does (a standing start at full
+    speed), never more."""
+    env = SlideOutEnv(n_objects=0)
+    env.reset(seed=0)
+    assert env.binding.speed_scale == 1.0  # no step yet
+    env.step(np.array([1.0, 0.0, 0.0], dtype=np.float32))
+    b = env.binding
+    assert b.speed_scale == pytest.approx(np.linalg.norm(b.limited_qdot) / np.linalg.norm(b.ik_qdot))
+    assert 0.0 < b.speed_scale < 1.0
+    for _ in range(3):
+        env.step(np.zeros(3, dtype=np.float32))
+    assert 0.0 < env.binding.speed_scale <= 1.0
+
+
 def test_braking_leaves_room_for_one_more_control_step():
     """Discrete braking: hold v for dt, then stop at a: v dt + v^2 / 2a <= s."""
     s, a, dt = 0.05, 6.0, 0.05

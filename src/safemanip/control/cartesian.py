@@ -20,8 +20,6 @@ set-point, ramped linearly over the step.
 
 from __future__ import annotations
 
-import math
-
 import mujoco
 import numpy as np
 
@@ -53,31 +51,28 @@ class PandaController:
         """Track end-effector ``velocity`` (world frame, m/s) over the coming control step of ``dt`` s.
 
         Returns the step's servo commands as phases, ((substeps, ctrl), ...), for the env to run."""
-        dofs, jac, jacp, jacr = binding.dofs, binding.jac6, binding.jacp, binding.jacr
-        mujoco.mj_jacSite(model, data, jacp, jacr, binding.ee_site)
-        jac[:3] = jacp[:, dofs]
-        jac[3:] = jacr[:, dofs]
+        jac = binding.jac6
+        mujoco.mj_jacSite(model, data, *binding.site_jac, binding.ee_site)
         # The joint velocities hold for the whole step while the arm moves (at 1.5 m/s the first joint turns
         # ~0.13 rad), so solve with the Jacobian expected half-way through the step: J + (dt/2) dJ/dt.
-        mujoco.mj_jacDot(model, data, jacp, jacr, data.site_xpos[binding.ee_site], binding.site_body)
-        jac[:3] += (0.5 * dt) * jacp[:, dofs]
-        jac[3:] += (0.5 * dt) * jacr[:, dofs]
+        mujoco.mj_jacDot(model, data, *binding.site_jac_dot, data.site_xpos[binding.ee_site], binding.site_body)
+        np.multiply(binding.arm_jac_dot, 0.5 * dt, out=jac)
+        jac += binding.arm_jac
         twist = binding.twist
         twist[:3] = velocity
-        twist[3:] = orientation_error(data.site_xmat[binding.ee_site].reshape(3, 3), binding.target_rotation)
-        twist[3:] *= self.orientation_gain / dt
+        np.multiply(orientation_error(data.site_xmat[binding.ee_site].reshape(3, 3), binding.target_rotation),
+                    self.orientation_gain / dt, out=twist[3:])
         q = data.qpos[binding.qpos]
-        qdot = dls_joint_velocity(jac, twist, self.ik_damping, self.posture_gain * (binding.home_qpos - q))
-        unlimited = float(qdot @ qdot)
+        binding.ik_qdot = qdot = dls_joint_velocity(jac, twist, self.ik_damping,
+                                                    self.posture_gain * (binding.home_qpos - q))
         # brake at half Franka's joint accelerations: the servos lag a little behind their set-points
         qdot = limit_joint_velocity(qdot, q, _LOWER, _UPPER, _SPEED_CAP, _BRAKING, dt)
         previous = data.act[binding.act_adr]  # the set-points the last ramp ended at
-        qdot = limit_joint_acceleration(qdot, previous, _ACCEL_CAP * dt)
-        binding.speed_scale = math.sqrt(float(qdot @ qdot) / unlimited) if unlimited > 0.0 else 1.0
+        binding.limited_qdot = qdot = limit_joint_acceleration(qdot, previous, _ACCEL_CAP * dt)
         # ramp the servo set-points from where they are to qdot over the step, the joint accelerations blended
         # from the last step's over the first substep (within Franka's jerk limits at 1 kHz)
-        substeps = int(round(dt / model.opt.timestep))
-        first, rest = jerk_limited_ramp(previous, qdot, binding.setpoint_rate, substeps, model.opt.timestep)
+        substeps = int(round(dt / binding.timestep))
+        first, rest = jerk_limited_ramp(previous, qdot, binding.setpoint_rate, substeps, binding.timestep)
         binding.setpoint_rate = rest
         return (1, first), (substeps - 1, rest)
 

@@ -108,6 +108,27 @@ def _check_reset_arguments(n_objects: int, seed, options) -> int | None:
     return seed
 
 
+_SMALL_ACTION = 1e150
+"""Entries below this in magnitude are finite, and the squared norm of three of them cannot overflow."""
+
+
+def _action_vector(action) -> np.ndarray:
+    """``action`` as a finite float64 (3,) array: what ``_check_action`` refuses, and a NaN or infinite entry, raise a
+    ValueError. A float vector of three entries well inside the float range (what every policy sends) is accepted
+    without the general checks: this runs every step."""
+    if type(action) is np.ndarray and action.shape == (3,) and action.dtype.kind == "f":
+        request = action.astype(np.float64)
+        x, y, z = request.tolist()
+        if abs(x) < _SMALL_ACTION and abs(y) < _SMALL_ACTION and abs(z) < _SMALL_ACTION:
+            return request
+    _check_action(action)
+    request = np.asarray(action, dtype=np.float64).reshape(3)
+    if not all(map(math.isfinite, request.tolist())):
+        raise ValueError(f"action must be finite, got {request.tolist()}: a NaN action usually means the "
+                         "policy's weights or its observation hold NaN")
+    return request
+
+
 def _check_action(action) -> None:
     """An action ``step`` can use: three finite real numbers whose squared norm is finite too (1e200 is finite, but
     the speed it asks for is not), not complex, text, booleans or objects."""

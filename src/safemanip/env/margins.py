@@ -90,14 +90,16 @@ def worst_top_box(top_xy_path: np.ndarray, top_xy_start, top_up_z_path: np.ndarr
     """min over a path (rows = physics substeps) of ``margin_top_box``."""
     dx = top_xy_path[:, 0] - top_xy_start[0]
     dy = top_xy_path[:, 1] - top_xy_start[1]
-    displaced = max_displacement - math.sqrt(float(np.max(dx * dx + dy * dy)))
-    return min(displaced, float(np.min(top_up_z_path)) - min_up)
+    dx *= dx  # in place: this runs every control step, and a temporary costs about as much as the arithmetic
+    dy *= dy
+    dx += dy
+    displaced = max_displacement - math.sqrt(float(dx.max()))
+    return min(displaced, float(top_up_z_path.min()) - min_up)
 
 
 def worst_in_workspace(xy_path: np.ndarray, half_extents, inset: float) -> float:
     """min over a path (rows = physics substeps) of ``margin_in_workspace``."""
-    far = np.max(np.abs(xy_path), axis=0)
-    return margin_in_workspace(far, half_extents, inset)
+    return margin_in_workspace(np.abs(xy_path).max(axis=0).tolist(), half_extents, inset)
 
 
 def margin_no_contact(distance: float, collision: float) -> float:

@@ -31,7 +31,7 @@ from safemanip.control.cartesian import make_controller
 from safemanip.control.diff_ik import MAX_EE_ACCEL, MAX_EE_SPEED, limit_ee_velocity, shape_action
 from safemanip.env import judge, sampling
 from safemanip.env import margins as M
-from safemanip.env.arguments import CONSTRAINT_MODES, _check_action, _check_init_arguments, _check_reset_arguments
+from safemanip.env.arguments import CONSTRAINT_MODES, _action_vector, _check_init_arguments, _check_reset_arguments
 from safemanip.env.judge import DISTANCE_CAP
 from safemanip.env.observation import SceneState, encode_constraints, observation_space
 from safemanip.env.state import StateGather
@@ -193,18 +193,15 @@ class SlideOutEnv(gym.Env):
     def step(self, action):
         if self.model is None:  # no scene yet: reset() builds it (gymnasium's OrderEnforcing says the same)
             raise gym.error.ResetNeeded("call reset() before step(): the env has no scene until its first reset()")
-        _check_action(action)
-        request = np.asarray(action, dtype=np.float64).reshape(3)
-        if not (math.isfinite(request[0]) and math.isfinite(request[1]) and math.isfinite(request[2])):
-            raise ValueError(f"action must be finite, got {request.tolist()}: a NaN action usually means the "
-                             "policy's weights or its observation hold NaN")
+        request = _action_vector(action)  # refuses what is not 3 finite real numbers (ValueError)
         # by norm, not per axis (no faster diagonals), through the action curve (``shape_action``)
-        request = shape_action(request, self.action_curve) * self.max_speed
+        shaped = shape_action(request, self.action_curve).tolist()
+        request_x, request_y, request_z = (a * self.max_speed for a in shaped)
         z_low, z_high = self._lift_band
         # the lift band: the action moves the commanded height within the band, and the hand is sent there (the
         # pads' push makes the velocity-servoed arm drift up by a few mm otherwise)
-        self._height = min(max(self._height + request[2] * CONTROL_DT, z_low), z_high)
-        request[2] = HEIGHT_GAIN * (self._height - self._values[2]) / CONTROL_DT
+        self._height = min(max(self._height + request_z * CONTROL_DT, z_low), z_high)
+        request_z = HEIGHT_GAIN * (self._height - self._values[2]) / CONTROL_DT
         # the horizontal hold: the velocity-servoed arm lags its set-points under load (gravity, the pads, the
         # table's friction on the box), so a zero command alone let the hand creep by about 1 cm/s. As a real
         # arm's Cartesian velocity interface integrates its command into a pose it holds, the hold point moves
@@ -215,12 +212,12 @@ class SlideOutEnv(gym.Env):
         if error > HOLD_RADIUS:
             error_x, error_y = error_x * HOLD_RADIUS / error, error_y * HOLD_RADIUS / error
         correction_x, correction_y = HOLD_GAIN * error_x / CONTROL_DT, HOLD_GAIN * error_y / CONTROL_DT
-        request[0] += correction_x
-        request[1] += correction_y
+        request = np.array((request_x + correction_x, request_y + correction_y, request_z))
         command = limit_ee_velocity(request, self._command, CONTROL_DT, self.max_speed, self.max_accel)
         self._command = command
-        self._hold = [x + error_x + (float(command[0]) - correction_x) * CONTROL_DT,
-                      y + error_y + (float(command[1]) - correction_y) * CONTROL_DT]
+        command_x, command_y, _ = command.tolist()
+        self._hold = [x + error_x + (command_x - correction_x) * CONTROL_DT,
+                      y + error_y + (command_y - correction_y) * CONTROL_DT]
         m, d = self.model, self.data
         phases = self.controller.command_velocity(m, d, self.binding, command, CONTROL_DT)
         time_before = d.time

@@ -39,17 +39,20 @@ class StateGather:
     velocities, the bodies' positions, the episode's constants); the slices below name each block. An observation is one
     gather from it.
 
-    The judge sensors' history is read as one (substeps, columns) gather through ``history_index``; the
-    ``h_*`` fields name its columns.
+    The judge sensors' history (one ring buffer of ``substeps`` samples per sensor, each overwritten once per control
+    step) is read where the judge needs it: the held box's and the top box's paths as views of their sensors' samples,
+    the contact sensors' found flags in one gather (``found_index``); only a step with a contact near an object reads
+    everything, as one (substeps, columns) gather through ``history_index`` whose columns the ``h_*`` fields name.
     """
 
     xpos: np.ndarray  # views into this scene's MjData (its buffers never move)
+    geom_xpos: np.ndarray
     qvel: np.ndarray
     site_xpos: np.ndarray
     xmat: np.ndarray  # flat
     sensordata: np.ndarray
     history: np.ndarray
-    sensor_index: np.ndarray  # in sensordata: the end-effector's linear velocity
+    sensor_index: slice  # in sensordata: the end-effector's linear velocity
     ee_site: int
     top_up_z: int  # index in ``xmat`` of the top box's up-axis z component
     body_rows: np.ndarray
@@ -63,7 +66,9 @@ class StateGather:
     top_pos: slice
     obj_pos: slice
     reach: list[float]  # per object: bounding radius of its geoms plus the held box's
-    geom_pairs: list[list[tuple[int, int]]]  # per object: (manipulated geom, object geom) pairs to query
+    distance_geoms: np.ndarray  # the manipulated geoms, then every object geom: the rows of one geom_xpos gather
+    geom_pairs: list[list[tuple[int, int, int, int, float]]]  # per object, the (manipulated geom, object geom) pairs
+    # to query: (geom 1, geom 2, their rows in ``distance_geoms``, the sum of their bounding radii)
     index_order: np.ndarray
     robot_sources: np.ndarray  # (18,): flat-state indices of the robot and box part of the observation
     slot_sources: np.ndarray  # (N, 9 or 10): flat-state indices of each slot entry (observation.py layout)
@@ -76,6 +81,10 @@ class StateGather:
     h_box_xy: np.ndarray  # (2,) the held box's position
     h_top_pos: np.ndarray  # (2,) the top box's horizontal position
     h_top_up_z: int  # the z component of the top box's up axis
+    found_index: np.ndarray  # indices into MjData.history of the h_found columns at every substep, flat
+    box_xy_path: np.ndarray  # (substeps, 2) view of MjData.history: the held box's position
+    top_xy_path: np.ndarray  # (substeps, 2) view: the top box's horizontal position
+    top_up_z_path: np.ndarray  # (substeps,) view: the z component of the top box's up axis
 
     @classmethod
     def build(cls, model: mujoco.MjModel, index: SceneIndex, binding, data: mujoco.MjData,
@@ -95,15 +104,26 @@ class StateGather:
         manipulated = [int(g) for g in index.manipulated_geoms]
         columns: list[np.ndarray] = []  # per column, its (substeps,) indices into MjData.history
 
-        def history_columns(sensor_name: str) -> list[int]:
+        def history_layout(sensor_name: str) -> tuple[int, int, int]:
+            """(address of the first sample, samples, dim): per sensor, MjData.history holds 2 header values, the
+            sample times, then the samples (dim values each)."""
             sensor = model.sensor(sensor_name)
             samples, dim = int(model.sensor_history[sensor.id, 0]), int(sensor.dim[0])
-            # layout per sensor: 2 header values, the sample times, then the samples (dim values each)
-            values = int(model.sensor_historyadr[sensor.id]) + 2 + samples
+            return int(model.sensor_historyadr[sensor.id]) + 2 + samples, samples, dim
+
+        def history_columns(sensor_name: str) -> list[int]:
+            values, samples, dim = history_layout(sensor_name)
             first = len(columns)
             for c in range(dim):
                 columns.append(values + c + dim * np.arange(samples))
             return list(range(first, first + dim))
+
+        def history_samples(sensor_name: str) -> np.ndarray:
+            """(samples, dim) read-only view of a sensor's samples in MjData.history (its buffer never moves)."""
+            values, samples, dim = history_layout(sensor_name)
+            view = data.history[values:values + samples * dim].reshape(samples, dim)
+            view.flags.writeable = False
+            return view
 
         found, dist, object_vel = [], [], []
         for i in range(n):
@@ -116,15 +136,21 @@ class StateGather:
         box_xy = history_columns("judge_box_pos")[:2]
         top_xy = history_columns("judge_top_pos")[:2]
         top_up_z = history_columns("judge_top_up")[2]
+        history_index = np.stack(columns, axis=1).astype(np.intp)
+        h_found = np.array(found, dtype=np.intp).reshape(n, 2)
 
-        def sensor_values(name: str) -> np.ndarray:
+        distance_geoms = np.r_[manipulated, [int(g) for geoms in index.object_geoms for g in geoms]].astype(np.intp)
+        row = {int(g): r for r, g in enumerate(distance_geoms)}  # an object geom is listed once, after the manipulated
+        radius = model.geom_rbound
+
+        def sensor_values(name: str) -> slice:
             adr = int(model.sensor_adr[model.sensor(name).id])
-            return np.arange(adr, adr + 3)
+            return slice(adr, adr + 3)
 
         return cls(
-            xpos=data.xpos, qvel=data.qvel, site_xpos=data.site_xpos, xmat=data.xmat.reshape(-1),
-            sensordata=data.sensordata, history=data.history,
-            sensor_index=sensor_values("ee_vel").astype(np.intp),
+            xpos=data.xpos, geom_xpos=data.geom_xpos, qvel=data.qvel, site_xpos=data.site_xpos,
+            xmat=data.xmat.reshape(-1), sensordata=data.sensordata, history=data.history,
+            sensor_index=sensor_values("ee_vel"),
             ee_site=int(binding.ee_site), top_up_z=9 * int(index.top_box_body) + 8,
             body_rows=np.r_[index.bottom_box_body, index.top_box_body, index.object_bodies].astype(np.intp),
             # the boxes' and objects' free joints: linear velocities after the last substep (a sensor's value is
@@ -134,14 +160,17 @@ class StateGather:
                              index.object_qvel_flat].astype(np.intp),
             ee_pos=ee_pos, ee_vel=ee_vel, box_vel=box_vel, top_vel=top_vel, obj_vel=obj_vel,
             bottom_pos=bottom_pos, top_pos=top_pos, obj_pos=obj_pos,
-            reach=[float(r) + MANIPULATED_REACH for r in index.object_reach],
-            geom_pairs=[[(g1, int(g2)) for g1 in manipulated for g2 in geoms] for geoms in index.object_geoms],
+            reach=[float(r) + MANIPULATED_REACH for r in index.object_reach], distance_geoms=distance_geoms,
+            geom_pairs=[[(g1, int(g2), row[g1], row[int(g2)], float(radius[g1] + radius[g2])) for g1 in manipulated
+                         for g2 in geoms] for geoms in index.object_geoms],
             index_order=np.arange(n), robot_sources=robot, slot_sources=slots,
             index_sources=np.concatenate((robot, slots.ravel())),
-            history_index=np.stack(columns, axis=1).astype(np.intp),
-            h_found=np.array(found, dtype=np.intp).reshape(n, 2), h_dist=np.array(dist, dtype=np.intp).reshape(n, 2),
+            history_index=history_index,
+            h_found=h_found, h_dist=np.array(dist, dtype=np.intp).reshape(n, 2),
             h_obj_vel=np.array(object_vel, dtype=np.intp).reshape(n, 3), h_box_vel=np.array(h_box_vel, dtype=np.intp),
-            h_box_xy=np.array(box_xy, dtype=np.intp), h_top_pos=np.array(top_xy, dtype=np.intp), h_top_up_z=top_up_z)
+            h_box_xy=np.array(box_xy, dtype=np.intp), h_top_pos=np.array(top_xy, dtype=np.intp), h_top_up_z=top_up_z,
+            found_index=history_index[:, h_found].ravel(), box_xy_path=history_samples("judge_box_pos")[:, :2],
+            top_xy_path=history_samples("judge_top_pos")[:, :2], top_up_z_path=history_samples("judge_top_up")[:, 2])
 
     def observation_sources(self, ids: np.ndarray) -> np.ndarray:
         if ids is self.index_order:

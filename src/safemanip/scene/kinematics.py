@@ -31,7 +31,8 @@ def dls_joint_velocity(jacobian: np.ndarray, twist: np.ndarray, damping: float,
     MuJoCo's Cholesky routines (a microsecond, where numpy's solve costs tens in call overhead).
     """
     jjt = jacobian @ jacobian.T
-    jjt.flat[::jjt.shape[0] + 1] += damping * damping
+    diagonal = jjt.reshape(-1)[::jjt.shape[0] + 1]  # a view (``flat`` indexing would copy out and back)
+    diagonal += damping * damping
     rhs = twist if nullspace_velocity is None else twist - jacobian @ nullspace_velocity
     if mujoco.mju_cholFactor(jjt, 1e-12) < jjt.shape[0]:  # singular without damping: fall back to lstsq
         solution = np.linalg.lstsq(jacobian @ jacobian.T, rhs, rcond=None)[0]

@@ -168,14 +168,28 @@ class PandaBinding:
     root_body: int
     home_qpos: np.ndarray
     target_rotation: np.ndarray  # (3, 3) hand orientation to hold
-    jacp: np.ndarray
-    jacr: np.ndarray
-    jac6: np.ndarray
+    site_jac: tuple[np.ndarray, np.ndarray]  # the end-effector site's Jacobian (translation, rotation): the two
+    # (3, nv) halves of one (6, nv) buffer, which mj_jacSite fills
+    site_jac_dot: tuple[np.ndarray, np.ndarray]  # the same for its time derivative (mj_jacDot)
+    arm_jac: np.ndarray  # (6, 7) view of the arm's columns of the first buffer
+    arm_jac_dot: np.ndarray  # (6, 7) view of the arm's columns of the second
+    jac6: np.ndarray  # (6, 7) buffer: the two combined
     twist: np.ndarray  # (6,) buffer
-    qpos: slice | np.ndarray  # qpos_adr / dof_adr as slices when contiguous (they are, as compiled)
-    dofs: slice | np.ndarray
+    timestep: float  # the model's physics timestep [s]
+    qpos: slice | np.ndarray  # qpos_adr as a slice when contiguous (it is, as compiled)
+    dofs: slice  # dof_adr as a slice (the arm's dofs are contiguous)
     setpoint_rate: np.ndarray  # (7,) the servo set-points' rate (commanded joint acceleration) at the last substep
-    speed_scale: float = 1.0  # last step: share of the IK's joint speeds the joint limits let through
+    ik_qdot: np.ndarray | None = None  # last step: the IK's joint velocities, and those the joint limits let through
+    limited_qdot: np.ndarray | None = None
+
+    @property
+    def speed_scale(self) -> float:
+        """Last step: share of the IK's joint speeds the joint limits let through (computed when asked: the
+        controller never needs it)."""
+        if self.ik_qdot is None:
+            return 1.0
+        unlimited = float(self.ik_qdot @ self.ik_qdot)
+        return math.sqrt(float(self.limited_qdot @ self.limited_qdot) / unlimited) if unlimited > 0.0 else 1.0
 
 
 class PandaArm:
@@ -223,16 +237,21 @@ class PandaArm:
         if servos != list(range(servos[0], servos[0] + 7)) or acts != list(range(acts[0], acts[0] + 7)):
             raise RuntimeError("the Panda's servos must be contiguous in the compiled model")
         dofs = np.array([j.dofadr[0] for j in joints])
+        arm = _as_slice(dofs)
+        if not isinstance(arm, slice):  # the arm's Jacobian columns are then views (``arm_jac``)
+            raise RuntimeError("the Panda's joints must have contiguous dofs in the compiled model")
         home, pose = home_configuration(GEOMETRY)  # the geometry every scene is built with
         nv = model.nv
+        site_jac, site_jac_dot = np.zeros((6, nv)), np.zeros((6, nv))
         return PandaBinding(
             qpos_adr=np.array([j.qposadr[0] for j in joints]), dof_adr=dofs,
             actuator_ids=slice(servos[0], servos[0] + 7), act_adr=slice(acts[0], acts[0] + 7),
             ee_site=model.site(self.ee_site_name).id, site_body=int(model.site(self.ee_site_name).bodyid[0]),
             pad_qpos=np.array([model.joint(p).qposadr[0] for p in PANDA_PADS]),
             root_body=model.body(self.root_body_name).id, home_qpos=home, target_rotation=pose["site"][1],
-            jacp=np.zeros((3, nv)), jacr=np.zeros((3, nv)), jac6=np.zeros((6, 7)), twist=np.zeros(6),
-            qpos=_as_slice(np.array([j.qposadr[0] for j in joints])), dofs=_as_slice(dofs),
+            site_jac=(site_jac[:3], site_jac[3:]), site_jac_dot=(site_jac_dot[:3], site_jac_dot[3:]),
+            arm_jac=site_jac[:, arm], arm_jac_dot=site_jac_dot[:, arm], jac6=np.zeros((6, 7)), twist=np.zeros(6),
+            timestep=float(model.opt.timestep), qpos=_as_slice(np.array([j.qposadr[0] for j in joints])), dofs=arm,
             setpoint_rate=np.zeros(7))
 
     def holding_reach(self, geo: TaskGeometry) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
