@@ -129,8 +129,10 @@ def table(stored_rows: list[dict], expected: dict[str, int], seeds_needed: int) 
         if worst_v:
             text += f" (highest: {_label(worst_v)}, {_pct(worst_v['violation_with'])} %)"
         text += f"; success cost at most 3 points in {len(costed) - len(bad_c)} of {len(costed)} checked"
-        if worst_c:
+        if worst_c and worst_c["cost"] > 0:
             text += f" (largest: {_label(worst_c)}, {_pct(worst_c['cost'])} points)"
+        elif worst_c:
+            text += " (the filter raised success in every one)"
         lines.append(text + ".")
     lines += ["", "| experiment | setting | success without / with the filter (%) | change {seed interval} | "
                   "violations without / with (worst seed; of it top box or workspace) | timeouts with | "
