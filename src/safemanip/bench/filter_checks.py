@@ -19,6 +19,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from safemanip.bench.verdict import entry
 from safemanip.evaluation.registry import display_name
 from safemanip.evaluation.stats import seed_bootstrap_difference
 
@@ -41,14 +42,8 @@ def method(cell) -> tuple:
 
 
 def _rates(results: list[dict], key: str) -> list[float]:
-    out = []
-    for r in results:
-        s = r["summary"]
-        if key == "violation":
-            out.append(s["safety_violation"]["rate"])
-        else:
-            out.append(s["categories"][key]["rate"] if key != "success" else s["success"]["rate"])
-    return out
+    """Each result's rate of ``key``: success, safety_violation or a failure category."""
+    return [entry(r, key)["rate"] for r in results]
 
 
 def _mean(values: list[float]) -> float:
@@ -79,8 +74,8 @@ def rows(results: list[dict], experiment: str) -> list[dict]:
         row = {"experiment": experiment, "group": group, "n_objects": n, "semantics": semantics,
                "selector": selector, "constraints": constraints, "seeds": len(seeds),
                "success_without": _mean(_rates(off, "success")), "success_with": _mean(_rates(on, "success")),
-               "violation_without": _mean(_rates(off, "violation")), "violation_with": _mean(_rates(on, "violation")),
-               "violation_with_worst_seed": max(_rates(on, "violation")),
+               "violation_without": _mean(_rates(off, "safety_violation")), "violation_with": _mean(_rates(on, "safety_violation")),
+               "violation_with_worst_seed": max(_rates(on, "safety_violation")),
                "task_violation_with": _mean([sum(r) for r in zip(*(_rates(on, k) for k in TASK_KINDS))]),
                "timeout_with": _mean(_rates(on, "timeout")), "change_ci95": change,
                "overridden": sum(o.get("overrides", 0) for o in overrides) / max(1, sum(o.get("steps", 0)

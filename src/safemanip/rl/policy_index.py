@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import os
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 from safemanip.util.files import JSONInputError, atomic_write_text, read_json_file
@@ -59,7 +59,7 @@ class PolicyEntry:
     """Which of the run's policies was promoted: 'final' or 'best' (None: not promoted by safemanip bench promote)."""
 
 
-_FIELDS = {name: kind for name, kind in PolicyEntry.__annotations__.items()}
+_FIELDS = {f.name for f in fields(PolicyEntry)}
 
 
 def file_sha256(path: Path) -> str:
@@ -153,6 +153,15 @@ def policy_folders() -> list[Path]:
     return folders
 
 
+def _answers(folder: Path) -> dict[str, PolicyEntry | None]:
+    """The policy names ``folder`` answers: its manifest's entries; for the package's own folder without one, its
+    files by name (None: no entry to check against); for any other folder without one, nothing."""
+    entries = read_manifest(folder)
+    if entries or folder.resolve() != PACKAGE_POLICIES:
+        return entries
+    return {p.stem: None for p in folder.glob("*.safetensors")}
+
+
 def find_policy(name: str) -> Path | None:
     """The file of the policy called ``name`` (with or without .safetensors), or None if no folder has it.
 
@@ -160,11 +169,10 @@ def find_policy(name: str) -> Path | None:
     otherwise); the package's folder answers by file name."""
     name = name[: -len(".safetensors")] if name.endswith(".safetensors") else name
     for folder in policy_folders():
-        entries = read_manifest(folder)
-        if name in entries:
-            return _checked(folder, entries[name])
-        if not entries and folder.resolve() == PACKAGE_POLICIES and (folder / f"{name}.safetensors").is_file():
-            return folder / f"{name}.safetensors"
+        answers = _answers(folder)
+        if name in answers:
+            entry = answers[name]
+            return folder / f"{name}.safetensors" if entry is None else _checked(folder, entry)
     return None
 
 
@@ -183,11 +191,4 @@ def _checked(folder: Path, entry: PolicyEntry) -> Path:
 
 def known_policies() -> list[str]:
     """Every policy name ``find_policy`` answers, for error messages."""
-    names = set()
-    for folder in policy_folders():
-        entries = read_manifest(folder)
-        if entries:
-            names |= set(entries)
-        elif folder.resolve() == PACKAGE_POLICIES:
-            names |= {p.stem for p in folder.glob("*.safetensors")}
-    return sorted(names)
+    return sorted({name for folder in policy_folders() for name in _answers(folder)})
