@@ -34,7 +34,7 @@ def main() -> None:
                 env.step(direction.astype(np.float32))
             state = env.scene_state()
             velocity, start = state.bottom_vel[:2].copy(), state.bottom_pos[:2].copy()
-            speed, command = float(np.linalg.norm(velocity)), float(np.linalg.norm(env._command[:2]))
+            speed, command = float(np.linalg.norm(velocity)), float(np.linalg.norm(env.setpoint.command[:2]))
             for _ in range(30):
                 env.step(np.zeros(3, dtype=np.float32))
             travelled = float(np.linalg.norm(env.scene_state().bottom_pos[:2] - start))

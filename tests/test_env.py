@@ -721,7 +721,7 @@ def test_the_env_commands_speeds_through_its_action_curve():
         env = SlideOutEnv(n_objects=0, action_curve=curve)
         env.reset(seed=0)
         env.step(np.array([0.3, 0.0, 0.0]))  # within one step's 0.65 m/s of acceleration
-        speeds[curve] = float(np.linalg.norm(env._command))
+        speeds[curve] = float(np.linalg.norm(env.setpoint.command))
     assert speeds[1.0] == pytest.approx(0.3 * 1.7) and speeds[2.0] == pytest.approx(0.09 * 1.7)
     with pytest.raises(ValueError, match="action_curve"):
         SlideOutEnv(n_objects=0, action_curve=0.5)

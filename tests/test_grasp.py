@@ -8,7 +8,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from safemanip.env.slide_out import LIFT_BAND, SlideOutEnv
+from safemanip.control.setpoint import LIFT_BAND
+from safemanip.env.slide_out import SlideOutEnv
 from safemanip.scene.grasp import PAD_PRELOAD, PAD_PRESS, PAD_STIFFNESS, PAD_TRAVEL
 
 NOMINAL = 2 * PAD_STIFFNESS * (PAD_PRELOAD + PAD_PRESS)  # both pads at the nominal press [N]

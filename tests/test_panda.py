@@ -209,7 +209,7 @@ def test_franka_limits_are_never_exceeded(actions):
         for _ in range(40):
             a = rng.uniform(-1, 1, 3) if actions == "random" else np.sign(rng.uniform(-1, 1, 3))
             *_, terminated, _, _ = env.step(a.astype(np.float32))
-            command = env._command
+            command = env.setpoint.command
             assert np.linalg.norm(command) <= MAX_EE_SPEED + 1e-9
             assert np.linalg.norm(command - previous_command) <= MAX_EE_ACCEL * 0.05 + 1e-9
             previous_command = command.copy()
@@ -270,7 +270,7 @@ def test_the_hand_ablation_has_the_same_cartesian_limits():
     speeds = []
     for _ in range(8):
         obs, *_ = env.step(np.array([1.0, 1.0, 0.0], dtype=np.float32))
-        speeds.append(np.linalg.norm(env._command))
+        speeds.append(np.linalg.norm(env.setpoint.command))
     assert speeds[0] == pytest.approx(MAX_EE_ACCEL * 0.05) and max(speeds) == pytest.approx(MAX_EE_SPEED)
 
 

@@ -53,6 +53,30 @@ def test_full_speed_towards_a_fragile_object_stops_short_of_it(angle):
     assert worst > D4, f"came within {100 * worst:.1f} cm of the bowl"
 
 
+def test_a_creeping_command_stops_at_the_floor():
+    """A policy that asks for a few mm/s towards a fragile object for 15 s (below the speeds at which the box's own
+    motion is checked): its commanded path is still checked, so the box stops outside d4. Before, the filter checked
+    nothing below 1 cm/s and the box crept into the object (17 episodes of one policy on block 47)."""
+    env = SlideOutEnv(n_objects=1, names=["ceramic bowl"], constraints="conservative")
+    env.reset(seed=0)
+    _free_box(env)
+    box = env.scene_state().bottom_pos[:2]
+    _place(env, 0, box + np.array([0.095 + 0.075 + 0.03, 0.0]))  # 3 cm beyond the box's short side, along +x
+    shield = BrakingShield()
+    creep = np.array([0.06, 0.0, 0.0], dtype=np.float32)  # with the benchmark's action curve 2: about 6 mm/s
+    env.setpoint.curve = 2.0
+    worst = np.inf
+    for _ in range(300):
+        _, _, terminated, _, info = env.step(shield.filter(env, creep, env.constraints))
+        worst = min(worst, info["margins"]["g_hard:0:ceramic bowl"] + D4)
+        assert info["event"] != "failure:hard"
+        if terminated:
+            break
+    moved = env.scene_state().bottom_pos[0] - box[0]
+    assert moved > 0.01, "the creep never started: the test checks nothing"
+    assert shield.stats.overrides > 0 and worst > D4, f"came within {100 * worst:.1f} cm of the bowl"
+
+
 def test_a_policy_that_keeps_its_clearance_is_never_overridden():
     env = SlideOutEnv(n_objects=2, names=["wine glass", "red mug"], constraints="conservative")
     env.reset(seed=0)

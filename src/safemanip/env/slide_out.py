@@ -28,7 +28,8 @@ import mujoco
 import numpy as np
 
 from safemanip.control.cartesian import make_controller
-from safemanip.control.diff_ik import MAX_EE_ACCEL, MAX_EE_SPEED, limit_ee_velocity, shape_action
+from safemanip.control.diff_ik import MAX_EE_ACCEL, MAX_EE_SPEED
+from safemanip.control.setpoint import CartesianSetpoint
 from safemanip.env import judge, sampling
 from safemanip.env import margins as M
 from safemanip.env.arguments import CONSTRAINT_MODES, _action_vector, _check_init_arguments, _check_reset_arguments
@@ -39,14 +40,7 @@ from safemanip.scene.builder import CONTROL_DT, SUBSTEPS, build_model, scene_ind
 from safemanip.scene.catalog import CONSTRAINT_TYPES, load_catalog
 from safemanip.scene.config import GEOMETRY, SceneConfig
 from safemanip.scene.embodiment import EMBODIMENTS, make_embodiment
-from safemanip.scene.grasp import PAD_PRESS
 EVENTS = ("running", "success", "failure:dyn", "failure:hard", "failure:soft", "failure:oob", "timeout", "unstable")
-LIFT_BAND = 0.5 * PAD_PRESS  # the hand may rise this far above the nominal press [m]: the pads, half out, still
-# press with 18 N (20 N at the nominal press), so the action's z only trims the pressing force and never lets go
-HEIGHT_GAIN = 0.5  # share of the hand's height error corrected per step: a full correction overshoots and rings
-HOLD_GAIN = 0.5  # share of the hand's horizontal error from its hold point corrected per step (as for the height)
-HOLD_RADIUS = 0.005  # the hold point stays this close to the hand [m]: when the arm's limits or a contact hold the
-# hand back, the hold point does not run ahead of it (no wind-up); the correction is at most 5 cm/s
 RESTING_TOLERANCE = 0.002  # success needs the held box on the table: its bottom face at most this high [m]
 
 
@@ -103,6 +97,8 @@ class SlideOutEnv(gym.Env):
         self.max_speed = MAX_EE_SPEED
         self.max_accel = MAX_EE_ACCEL
         self.max_step = self.max_speed * CONTROL_DT  # the longest displacement one action can ask for [m]
+        self.setpoint = CartesianSetpoint(CONTROL_DT, self.action_curve, self.max_speed, self.max_accel)
+        """What each action asks the arm's controller for (action curve, lift band, hold point, the arm's limits)."""
         self.thresholds = thresholds
         self.sleep = sleep
         self.render_size = render_size
@@ -179,11 +175,8 @@ class SlideOutEnv(gym.Env):
         self._episode_flat, self._soft_flags, self._checked_list, self._margin_names = \
             self._constraint_tables(names, self.constraints)
         self._t = 0
-        self._command = np.zeros(3)
         self._read_state()
-        self._lift_band = (self._values[2], self._values[2] + LIFT_BAND)
-        self._height = self._values[2]  # the commanded height of the end-effector
-        self._hold = self._values[:2]  # where the end-effector should be in the horizontal plane (x, y)
+        self.setpoint.reset(self._values)  # at rest, holding the end-effector where it is
         if not math.isfinite(sum(self._values)):
             raise RuntimeError("the scene is not finite right after reset: the model or the placement is broken")
         terms = self._margins()
@@ -194,30 +187,7 @@ class SlideOutEnv(gym.Env):
         if self.model is None:  # no scene yet: reset() builds it (gymnasium's OrderEnforcing says the same)
             raise gym.error.ResetNeeded("call reset() before step(): the env has no scene until its first reset()")
         request = _action_vector(action)  # refuses what is not 3 finite real numbers (ValueError)
-        # by norm, not per axis (no faster diagonals), through the action curve (``shape_action``)
-        shaped = shape_action(request, self.action_curve).tolist()
-        request_x, request_y, request_z = (a * self.max_speed for a in shaped)
-        z_low, z_high = self._lift_band
-        # the lift band: the action moves the commanded height within the band, and the hand is sent there (the
-        # pads' push makes the velocity-servoed arm drift up by a few mm otherwise)
-        self._height = min(max(self._height + request_z * CONTROL_DT, z_low), z_high)
-        request_z = HEIGHT_GAIN * (self._height - self._values[2]) / CONTROL_DT
-        # the horizontal hold: the velocity-servoed arm lags its set-points under load (gravity, the pads, the
-        # table's friction on the box), so a zero command alone let the hand creep by about 1 cm/s. As a real
-        # arm's Cartesian velocity interface integrates its command into a pose it holds, the hold point moves
-        # with the command sent and the hand is pulled towards it.
-        (x, y), (hold_x, hold_y) = self._values[:2], self._hold
-        error_x, error_y = hold_x - x, hold_y - y
-        error = math.hypot(error_x, error_y)
-        if error > HOLD_RADIUS:
-            error_x, error_y = error_x * HOLD_RADIUS / error, error_y * HOLD_RADIUS / error
-        correction_x, correction_y = HOLD_GAIN * error_x / CONTROL_DT, HOLD_GAIN * error_y / CONTROL_DT
-        request = np.array((request_x + correction_x, request_y + correction_y, request_z))
-        command = limit_ee_velocity(request, self._command, CONTROL_DT, self.max_speed, self.max_accel)
-        self._command = command
-        command_x, command_y, _ = command.tolist()
-        self._hold = [x + error_x + (command_x - correction_x) * CONTROL_DT,
-                      y + error_y + (command_y - correction_y) * CONTROL_DT]
+        command = self.setpoint.commit(self.setpoint.plan(request, self._values))  # control/setpoint.py
         m, d = self.model, self.data
         phases = self.controller.command_velocity(m, d, self.binding, command, CONTROL_DT)
         time_before = d.time
