@@ -17,6 +17,7 @@ from safemanip.control.scripted import ScriptedController
 from safemanip.env.margins import margin_no_contact, margin_soft_contact
 from safemanip.env.observation import (ROBOT_DIM, SLOT_DIM, build_observation, encode_constraints,
                                        observation_dim)
+from safemanip.env.config import EnvConfigError
 from safemanip.env.slide_out import EVENTS, SlideOutEnv
 from safemanip.scene.catalog import CONSTRAINT_TYPES, load_catalog
 from safemanip.scene.config import GEOMETRY, SceneConfigError
@@ -262,17 +263,17 @@ def test_classes_and_names_requests():
 
 @pytest.mark.parametrize("kwargs,error,match", [
     ({"constraints": "bogus"}, ValueError, "constraints must be one of"),
-    ({"constraints": ("no_contact",)}, ValueError, "one constraint per object"),
-    ({"constraints": ("no_contact", "gentle")}, ValueError, "one constraint per object"),
+    ({"constraints": ("no_contact",)}, EnvConfigError, "one type per object"),
+    ({"constraints": ("no_contact", "gentle")}, EnvConfigError, "constraints must be one of"),
     ({"render_mode": "human"}, ValueError, "render_mode must be None or 'rgb_array'"),
     ({"max_episode_steps": 0}, ValueError, "max_episode_steps"),
     ({"max_episode_steps": 10**12}, ValueError, "max_episode_steps"),
     ({"embodiment": "ur5"}, ValueError, "embodiment must be one of"),
-    ({"n_objects": 9}, SceneConfigError, "n_objects must be an integer from 0 to 8"),
-    ({"n_objects": -1}, SceneConfigError, "n_objects must be an integer from 0 to 8"),
-    ({"classes": "2 fragile, 1 soft"}, SceneConfigError, "3 classes given for n_objects=2"),
-    ({"classes": "2 delicate"}, SceneConfigError, "cannot read"),
-    ({"names": ["red mug", "unicorn"]}, SceneConfigError, "unknown object name"),
+    ({"n_objects": 9}, EnvConfigError, "n_objects must be an integer from 0 to 8"),
+    ({"n_objects": -1}, EnvConfigError, "n_objects must be an integer from 0 to 8"),
+    ({"classes": "2 fragile, 1 soft"}, EnvConfigError, "3 classes given for n_objects=2"),
+    ({"classes": "2 delicate"}, EnvConfigError, "cannot read"),
+    ({"names": ["red mug", "unicorn"]}, EnvConfigError, "unknown object name"),
 ])
 def test_bad_env_kwargs(kwargs, error, match):
     kwargs = {"n_objects": 2, **kwargs}

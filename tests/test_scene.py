@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from safemanip.env import margins as M
+from safemanip.env.config import EnvConfigError
 from safemanip.env.slide_out import SlideOutEnv
 from safemanip.scene import config as config_module
 from safemanip.scene.builder import build_model
@@ -476,9 +477,9 @@ def test_the_narrow_layout_is_a_channel():
     for seed in range(10):
         env.reset(seed=seed)
         assert env.placement.near_path.all() and env.placement.route.layout is narrow
-    with pytest.raises(SceneConfigError, match="keeps a route clear"):
+    with pytest.raises(EnvConfigError, match="keeps a route clear"):
         SlideOutEnv(n_objects=2, layout="narrow", clear_route=False)
-    with pytest.raises(SceneConfigError, match="layout must be one of route, narrow"):
+    with pytest.raises(EnvConfigError, match="layout must be one of route, narrow"):
         SlideOutEnv(n_objects=2, layout="tight")
 
 

@@ -1,17 +1,25 @@
 """The slide-out env's settings as one typed, validated config: what a policy was trained in (its metadata's
 ``env_kwargs`` is this config's ``kwargs()``), what an evaluation changes of it (``dataclasses.replace``), and
-what builds the env (``SlideOutEnv(**config.kwargs())``). The scene part is checked by ``scene.config.SceneConfig``
+what builds the env (``SlideOutEnv(config)``, or its fields as keywords). The scene part is checked by ``scene.config.SceneConfig``
 and the robot by the embodiment registry, so a bad value is refused with a message before anything is built.
 """
 
 from __future__ import annotations
 
+import math
 import numbers
 from dataclasses import dataclass, fields
 
-from safemanip.env.arguments import CONSTRAINT_MODES
-from safemanip.scene.config import SceneConfig
+import numpy as np
+
+from safemanip.scene.catalog import CONSTRAINT_TYPES
+from safemanip.scene.config import SceneConfig, parse_semantics
 from safemanip.scene.embodiment import EMBODIMENTS
+from safemanip.scene.placement import LAYOUTS
+from safemanip.util.values import brief, is_int, is_real, is_strings
+
+CONSTRAINT_MODES = ("ground_truth", "conservative", "random")
+"""How an episode's constraint types are chosen: from the catalog, all no_contact, or drawn at random."""
 
 
 class EnvConfigError(ValueError):
@@ -22,11 +30,15 @@ class EnvConfigError(ValueError):
 class EnvConfig:
     n_objects: int = 4
     """Clutter objects in every scene (N), 0 to 8."""
-    constraints: str = "ground_truth"
+    constraints: str | tuple[str, ...] = "ground_truth"
     """How each episode's constraint types are chosen: 'ground_truth' (each object's catalog class), 'conservative'
-    (every object no_contact) or 'random' (drawn per object: training all constraint types)."""
+    (every object no_contact) or 'random' (drawn per object: training all constraint types); or one type per
+    object, the same every episode."""
+    names: tuple[str, ...] | None = None
+    """The scene's objects by catalog name, the same every episode (None: drawn per episode)."""
     classes: tuple[str, ...] | None = None
-    """Semantic class of each object (names drawn from the catalog per episode); None: any class."""
+    """Semantic class of each object (names drawn from the catalog per episode); None: any class. From keywords,
+    a description such as '2 fragile, 1 soft' also works."""
     near_path_fraction: float | None = None
     """Share of the clutter beside the route (None: the layout's own)."""
     clear_route: bool = True
@@ -49,24 +61,46 @@ class EnvConfig:
     """Each observation slot also carries the object's footprint radius."""
 
     def __post_init__(self):
+        """Every setting checked here, once, for every way in (keywords, ``gym.make``, a policy's metadata): each
+        bad one is named with what it must be, before anything is built."""
         problems = []
-        if self.constraints not in CONSTRAINT_MODES:
-            problems.append(f"constraints must be one of {CONSTRAINT_MODES}, got {self.constraints!r}")
-        if self.slot_order not in ("index", "nearest"):
-            problems.append(f"slot_order must be 'index' or 'nearest', got {self.slot_order!r}")
-        if self.embodiment not in EMBODIMENTS:
-            problems.append(f"embodiment must be one of {sorted(EMBODIMENTS)}, got {self.embodiment!r}")
-        if not (isinstance(self.max_episode_steps, numbers.Integral) and not isinstance(self.max_episode_steps, bool)
-                and 1 <= self.max_episode_steps <= 100_000):
-            problems.append(f"max_episode_steps must be an integer from 1 to 100000, got {self.max_episode_steps!r}")
-        if not (isinstance(self.action_curve, numbers.Real) and not isinstance(self.action_curve, bool)
-                and 1.0 <= self.action_curve <= 4.0):
-            problems.append(f"action_curve must be a number from 1 (linear) to 4, got {self.action_curve!r}")
+        if not (isinstance(self.constraints, str) and self.constraints in CONSTRAINT_MODES
+                or is_strings(self.constraints) and all(c in CONSTRAINT_TYPES for c in self.constraints)):
+            problems.append(f"constraints must be one of {CONSTRAINT_MODES} or a list of {CONSTRAINT_TYPES} (one per "
+                            f"object), got {brief(self.constraints)}")
+        elif not isinstance(self.constraints, str) and is_int(self.n_objects) and len(self.constraints) != self.n_objects:
+            problems.append(f"constraints must give one type per object ({self.n_objects}), got {len(self.constraints)}")
+        if self.names is not None and not is_strings(self.names):
+            problems.append(f"names must be a list of catalog names (or None), got {brief(self.names)}")
+        if self.classes is not None and not is_strings(self.classes):
+            problems.append("classes must be a list of semantic classes or a description such as '2 fragile, 1 soft' "
+                            f"(or None), got {brief(self.classes)}")
+        if self.near_path_fraction is not None and not (is_real(self.near_path_fraction)
+                                                        and 0 <= self.near_path_fraction <= 1):
+            problems.append(f"near_path_fraction must be a number in [0, 1] (or None), got {brief(self.near_path_fraction)}")
+        if not isinstance(self.layout, str):  # which names: the scene config says
+            problems.append(f"layout must be one of {', '.join(map(repr, LAYOUTS))}, got {brief(self.layout)}")
+        for name, allowed in (("embodiment", tuple(EMBODIMENTS)), ("slot_order", ("index", "nearest"))):
+            value = getattr(self, name)
+            if not isinstance(value, str) or value not in allowed:
+                problems.append(f"{name} must be one of {', '.join(map(repr, allowed))}, got {brief(value)}")
+        if not (is_int(self.max_episode_steps) and 1 <= self.max_episode_steps <= 100_000):
+            problems.append(f"max_episode_steps must be an integer from 1 to 100000, got {brief(self.max_episode_steps)}")
+        if not (is_real(self.action_curve) and math.isfinite(self.action_curve) and 1.0 <= self.action_curve <= 4.0):
+            problems.append(f"action_curve must be a number from 1 (linear) to 4, got {brief(self.action_curve)}")
         for name in ("clear_route", "object_size"):
-            if not isinstance(getattr(self, name), bool):
-                problems.append(f"{name} must be true or false, got {getattr(self, name)!r}")
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                problems.append(f"{name} must be true or false, got {brief(getattr(self, name))}")
         if problems:
             raise EnvConfigError("invalid env settings: " + "; ".join(problems))
+        # one type per field from here on (a NumPy integer or bool from a caller becomes a Python one)
+        for name, kind in (("max_episode_steps", int), ("action_curve", float), ("clear_route", bool),
+                           ("object_size", bool)):
+            object.__setattr__(self, name, kind(getattr(self, name)))
+        for name in ("names", "classes", "constraints"):
+            value = getattr(self, name)
+            if isinstance(value, list):
+                object.__setattr__(self, name, tuple(value))
         try:
             self.scene()
         except ValueError as err:
@@ -74,9 +108,9 @@ class EnvConfig:
 
     def scene(self) -> SceneConfig:
         """The scene part, checked."""
-        return SceneConfig(n_objects=self.n_objects, classes=self.classes, near_path_fraction=self.near_path_fraction,
-                           clear_route=self.clear_route, layout=self.layout, gate_share=self.gate_share,
-                           exit_share=self.exit_share)
+        return SceneConfig(n_objects=self.n_objects, names=self.names, classes=self.classes,
+                           near_path_fraction=self.near_path_fraction, clear_route=self.clear_route,
+                           layout=self.layout, gate_share=self.gate_share, exit_share=self.exit_share)
 
     def kwargs(self) -> dict:
         """The keyword arguments of ``SlideOutEnv`` (and a policy's recorded ``env_kwargs``); settings at their
@@ -84,15 +118,15 @@ class EnvConfig:
         out = {}
         for f in fields(self):
             value = getattr(self, f.name)
-            if value is None and f.name in ("classes", "gate_share", "exit_share"):
+            if value is None and f.name in ("names", "classes", "gate_share", "exit_share"):
                 continue
             out[f.name] = list(value) if isinstance(value, tuple) else value
         return out
 
     @classmethod
     def from_kwargs(cls, kwargs: dict, where: str = "env settings") -> "EnvConfig":
-        """A config from recorded ``env_kwargs`` (a policy's metadata); keys it does not know are refused, keys an
-        older record lacks take their defaults."""
+        """A config from keywords (``SlideOutEnv``'s, ``gym.make``'s) or recorded ``env_kwargs`` (a policy's
+        metadata); keys it does not know are refused, keys an older record lacks take their defaults."""
         if not isinstance(kwargs, dict):
             raise EnvConfigError(f"{where}: expected an object of env settings, got {type(kwargs).__name__}")
         known = {f.name for f in fields(cls)}
@@ -100,6 +134,12 @@ class EnvConfig:
         if unknown:
             raise EnvConfigError(f"{where}: unknown setting(s) {unknown}; the env takes {sorted(known)}")
         values = dict(kwargs)
-        if values.get("classes") is not None:
-            values["classes"] = tuple(values["classes"])
+        if isinstance(values.get("classes"), str):  # '2 fragile, 1 soft'
+            try:
+                values["classes"] = parse_semantics(values["classes"])
+            except ValueError as err:
+                raise EnvConfigError(f"invalid env settings: {err}") from None
+        for name in ("names", "classes", "constraints"):
+            if isinstance(values.get(name), list):
+                values[name] = tuple(values[name])
         return cls(**values)

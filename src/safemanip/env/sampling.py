@@ -20,15 +20,15 @@ SCENE_TRIES = 20
 
 
 def choose_names(env, rng: np.random.Generator) -> tuple[str, ...]:
-    if env.config.names is not None:
-        return env.config.names
-    if env.config.n_objects == 0:
+    if env.scene_config.names is not None:
+        return env.scene_config.names
+    if env.scene_config.n_objects == 0:
         return ()
-    if env.config.classes is None:
+    if env.scene_config.classes is None:
         pool = sorted(load_catalog())
-        return tuple(rng.choice(pool, size=env.config.n_objects, replace=False).tolist())
+        return tuple(rng.choice(pool, size=env.scene_config.n_objects, replace=False).tolist())
     chosen: list[str] = []
-    for c in env.config.classes:
+    for c in env.scene_config.classes:
         pool = [n for n in names_of_class(c) if n not in chosen]
         chosen.append(str(rng.choice(pool)))
     return tuple(chosen)
@@ -48,7 +48,7 @@ def choose_constraints(env, mode, rng: np.random.Generator) -> tuple[str, ...]:
 
 def draw_kind(env, rng: np.random.Generator) -> str:
     """This episode's scene kind (``SCENE_KINDS``), by the config's shares; an open layout draws nothing."""
-    gate, exit_ = env.config.kind_shares
+    gate, exit_ = env.scene_config.kind_shares
     if gate == 0.0 and exit_ == 0.0:
         return "open"
     u = float(rng.random())
@@ -61,10 +61,10 @@ def place_scene(env, kind: str, rng: np.random.Generator):
     becomes an open scene, and ``placement.kind`` says so."""
     radii = env._footprint_radii(env.names)
     fragile = np.array([c == "no_contact" for c in env.constraints], dtype=bool)
-    layout = LAYOUTS[env.config.layout]
+    layout = LAYOUTS[env.scene_config.layout]
     for attempt in range(SCENE_TRIES if kind != "open" else 1):
-        route = sample_route(rng, env.geometry, layout=layout) if env.config.clear_route else None
-        placement = sample_placement(radii, rng, env.config.near_fraction, env.geometry, route=route, kind=kind,
+        route = sample_route(rng, env.geometry, layout=layout) if env.scene_config.clear_route else None
+        placement = sample_placement(radii, rng, env.scene_config.near_fraction, env.geometry, route=route, kind=kind,
                                      fragile=fragile)
         set_poses(env, placement)
         if placement.kind == "open" or not env.check_scenes or is_its_kind(env, placement, fragile):

@@ -21,7 +21,7 @@ gathers), ``judge`` (the margins over the step's substeps), ``observation`` (the
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from typing import Any
 
 import gymnasium as gym
 import mujoco
@@ -32,14 +32,15 @@ from safemanip.control.diff_ik import MAX_EE_ACCEL, MAX_EE_SPEED
 from safemanip.control.setpoint import CartesianSetpoint
 from safemanip.env import judge, sampling
 from safemanip.env import margins as M
-from safemanip.env.arguments import CONSTRAINT_MODES, _action_vector, _check_init_arguments, _check_reset_arguments
+from safemanip.env.arguments import _action_vector, _check_reset_arguments, _check_runtime_arguments
+from safemanip.env.config import EnvConfig
 from safemanip.env.judge import DISTANCE_CAP
 from safemanip.env.observation import SceneState, encode_constraints, observation_space
 from safemanip.env.state import StateGather
 from safemanip.scene.builder import CONTROL_DT, SUBSTEPS, build_model, scene_index
-from safemanip.scene.catalog import CONSTRAINT_TYPES, load_catalog
-from safemanip.scene.config import GEOMETRY, SceneConfig
-from safemanip.scene.embodiment import EMBODIMENTS, make_embodiment
+from safemanip.scene.catalog import load_catalog
+from safemanip.scene.config import GEOMETRY
+from safemanip.scene.embodiment import make_embodiment
 EVENTS = ("running", "success", "failure:dyn", "failure:hard", "failure:soft", "failure:oob", "timeout", "unstable")
 RESTING_TOLERANCE = 0.002  # success needs the held box on the table: its bottom face at most this high [m]
 
@@ -47,53 +48,36 @@ RESTING_TOLERANCE = 0.002  # success needs the held box on the table: its bottom
 class SlideOutEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": int(round(1 / CONTROL_DT))}
 
-    def __init__(self, n_objects: int = 4, names: Sequence[str] | None = None, classes: Sequence[str] | str | None = None,
-                 constraints: str | Sequence[str] = "ground_truth", near_path_fraction: float | None = None,
-                 render_mode: str | None = None, max_episode_steps: int = 300,
-                 thresholds: M.Thresholds = M.DEFAULT_THRESHOLDS, sleep: bool = True, slot_order: str = "index",
-                 render_size: tuple[int, int] = (480, 640), embodiment: str = "panda", visual: bool | None = None,
-                 action_curve: float = 1.0, object_size: bool = False, clear_route: bool = True,
-                 layout: str = "route", gate_share: float | None = None, exit_share: float | None = None,
-                 check_scenes: bool = True):
-        _check_init_arguments(locals())  # every argument's type and range, each refused by name (ValueError)
-        if isinstance(classes, str):
-            from safemanip.scene.config import parse_semantics
-            classes = parse_semantics(classes)
-        self.config = SceneConfig(n_objects=n_objects, names=tuple(names) if names else None,
-                                  classes=tuple(classes) if classes else None, near_path_fraction=near_path_fraction,
-                                  clear_route=clear_route, layout=layout, gate_share=gate_share,
-                                  exit_share=exit_share)
+    def __init__(self, config: EnvConfig | None = None, *, render_mode: str | None = None,
+                 thresholds: M.Thresholds = M.DEFAULT_THRESHOLDS, sleep: bool = True,
+                 render_size: tuple[int, int] = (480, 640), visual: bool | None = None, check_scenes: bool = True,
+                 **settings):
+        """``config``: the env's settings (``env/config.py``: what a policy is trained in and records), or its fields
+        as keywords (``SlideOutEnv(n_objects=4, layout="exit")``, ``gym.make``); keywords beside a config change it.
+        Either way they are checked once, by ``EnvConfig``, and a bad one is refused by name (``EnvConfigError``, a
+        ValueError). The other arguments say how this env runs, not what it is: how it renders, whether bodies may
+        sleep, whether gate and exit scenes are confirmed with the planner's map, and the judge's thresholds."""
+        _check_runtime_arguments(locals())  # each refused by name (ValueError)
+        if config is None:
+            config = EnvConfig.from_kwargs(settings, where="SlideOutEnv")
+        elif not isinstance(config, EnvConfig):
+            raise ValueError(f"SlideOutEnv: config must be an env.config.EnvConfig (or give its settings as keywords), "
+                             f"got {type(config).__name__}")
+        elif settings:
+            config = EnvConfig.from_kwargs({**config.kwargs(), **settings}, where="SlideOutEnv")
+        self.config = config
+        self.scene_config = config.scene()
         self.check_scenes = bool(check_scenes)
         """Confirm each gate and exit scene with the planner's free-space map (``_is_its_kind``, ~25 ms a draw)."""
-        if isinstance(constraints, str):
-            if constraints not in CONSTRAINT_MODES:
-                raise ValueError(f"constraints must be one of {CONSTRAINT_MODES} or a list of {CONSTRAINT_TYPES}, "
-                                 f"got {constraints!r}")
-        else:
-            constraints = tuple(constraints)
-            bad = [c for c in constraints if c not in CONSTRAINT_TYPES]
-            if bad or len(constraints) != n_objects:
-                raise ValueError(f"give one constraint per object from {CONSTRAINT_TYPES}; got {list(constraints)}")
-        if slot_order not in ("index", "nearest"):
-            raise ValueError(f"slot_order must be 'index' or 'nearest', got {slot_order!r}")
-        self.slot_order = slot_order
-        if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        if not isinstance(max_episode_steps, (int, np.integer)) or not 1 <= max_episode_steps <= 100_000:
-            raise ValueError(f"max_episode_steps must be an integer from 1 to 100000, got {max_episode_steps!r}")
-        if embodiment not in EMBODIMENTS:
-            raise ValueError(f"embodiment must be one of {sorted(EMBODIMENTS)}, got {embodiment!r}")
-        self.embodiment_name = embodiment
-        if not (isinstance(action_curve, (int, float)) and 1.0 <= action_curve <= 4.0):
-            raise ValueError(f"action_curve must be a number from 1 (linear) to 4, got {action_curve!r}")
-        self.action_curve = float(action_curve)
-        if not isinstance(object_size, (bool, np.bool_)):
-            raise ValueError(f"object_size must be true or false, got {object_size!r}")
-        self.object_size = bool(object_size)
+        # the settings the env reads every step or reset, as attributes (the config stays the record)
+        self.slot_order = config.slot_order
+        self.embodiment_name = config.embodiment
+        self.action_curve = config.action_curve
+        self.object_size = config.object_size
         """Each observation slot also carries the object's footprint radius (``env/observation.py``)."""
-        self.constraint_mode = constraints
+        self.constraint_mode = config.constraints
         self.render_mode = render_mode
-        self.max_episode_steps = int(max_episode_steps)
+        self.max_episode_steps = config.max_episode_steps
         self.max_speed = MAX_EE_SPEED
         self.max_accel = MAX_EE_ACCEL
         self.max_step = self.max_speed * CONTROL_DT  # the longest displacement one action can ask for [m]
@@ -105,10 +89,10 @@ class SlideOutEnv(gym.Env):
         self.geometry = GEOMETRY
         # visual meshes only when frames will be rendered: they are ~95 % of a compile, physics is the same
         self.visual = (render_mode is not None) if visual is None else bool(visual)
-        self.robot = make_embodiment(embodiment, visual=self.visual, gap=thresholds.collision)
+        self.robot = make_embodiment(config.embodiment, visual=self.visual, gap=thresholds.collision)
         self.controller = make_controller(self.robot)
         self.n_substeps = SUBSTEPS
-        self.observation_space = observation_space(n_objects, self.object_size)
+        self.observation_space = observation_space(config.n_objects, self.object_size)
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
         self._sims: dict[tuple[str, ...], tuple] = {}
         self._radii: dict[tuple[str, ...], np.ndarray] = {}

@@ -27,6 +27,7 @@ from safetensors.numpy import save_file as save_numpy
 
 from safemanip.scene.embodiment import EMBODIMENTS
 from safemanip.util.files import JSONInputError, atomic_path, atomic_write_text, parse_json, read_json_file
+from safemanip.util.values import brief, is_int
 
 POLICY_FORMAT = "safemanip-policy/1"
 
@@ -128,16 +129,16 @@ def read_checkpoint_meta(path: Path) -> dict:
         raise CheckpointError(str(err)) from err
     if not isinstance(meta, dict):
         raise CheckpointError(f"{where} is not a checkpoint's meta.json: not a JSON object")
-    wrong = [key for key in ("updates", "env_steps") if not _is_int(meta.get(key)) or meta[key] < 0]
+    wrong = [key for key in ("updates", "env_steps") if not is_int(meta.get(key)) or meta[key] < 0]
     if not _is_number(meta.get("elapsed_s")) or meta["elapsed_s"] < 0:
         wrong.append("elapsed_s")
-    if "restarts" in meta and (not _is_int(meta["restarts"]) or meta["restarts"] < 0):
+    if "restarts" in meta and (not is_int(meta["restarts"]) or meta["restarts"] < 0):
         wrong.append("restarts")
     if "best" in meta and not (isinstance(meta["best"], dict) and _is_number(meta["best"].get("success", 0.0))):
         wrong.append("best")
     if "config" in meta and not isinstance(meta["config"], dict):
         wrong.append("config")
-    if "evals" in meta and (not _is_int(meta["evals"]) or meta["evals"] < 0):
+    if "evals" in meta and (not is_int(meta["evals"]) or meta["evals"] < 0):
         wrong.append("evals")
     if wrong:
         raise CheckpointError(f"{where} is damaged: {', '.join(wrong)} missing or of the wrong type")
@@ -298,14 +299,10 @@ def _tensor_entry_ok(info) -> bool:
     dtype, shape, offsets = info["dtype"], info["shape"], info["data_offsets"]
     if dtype not in _DTYPE_BYTES or not isinstance(shape, list) or not isinstance(offsets, list) or len(offsets) != 2:
         return False
-    if not all(_is_int(v) and 0 <= v < 2**63 for v in (*shape, *offsets)):
+    if not all(is_int(v) and 0 <= v < 2**63 for v in (*shape, *offsets)):
         return False
     a, b = offsets
     return a <= b and b - a == math.prod(shape) * _DTYPE_BYTES[dtype]
-
-
-def _is_int(value) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
 
 
 def _is_number(value) -> bool:
@@ -479,11 +476,6 @@ def policy_object_size(meta: dict) -> bool:
     return isinstance(env_kwargs, dict) and bool(env_kwargs.get("object_size", False))
 
 
-def _short(value) -> str:
-    text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
 def policy_meta_problems(meta: dict) -> list[str]:
     """What is wrong with the types and ranges of a policy's metadata (keys that are absent are not checked here:
     the commands say which ones they need). Booleans must be JSON booleans, counts integers, numbers finite."""
@@ -494,13 +486,13 @@ def policy_meta_problems(meta: dict) -> list[str]:
         return isinstance(v, str)
 
     def is_count(lo, hi=None):
-        return lambda v: _is_int(v) and lo <= v and (hi is None or v <= hi)
+        return lambda v: is_int(v) and lo <= v and (hi is None or v <= hi)
 
     def is_in(lo, hi):
         return lambda v: _is_number(v) and lo <= v <= hi
 
     def is_widths(v):
-        return isinstance(v, list) and all(_is_int(h) and h >= 1 for h in v)
+        return isinstance(v, list) and all(is_int(h) and h >= 1 for h in v)
 
     top = {"algorithm": (is_str, "a name"), "k": (is_count(0, MAX_OBJECTS), f"a slot count 0..{MAX_OBJECTS}"),
            "constraints": (is_str, "a name"), "obs_dim": (is_count(1), "a positive integer"),
@@ -520,10 +512,10 @@ def policy_meta_problems(meta: dict) -> list[str]:
            "slot_order": (lambda v: v in ("nearest", "index"), "'nearest' or 'index'"),
            "embodiment": (is_str, "a name"), "action_curve": (is_in(1, 4), "a number from 1 to 4"),
            "object_size": (lambda v: isinstance(v, bool), "true or false")}
-    problems = [f"{key}={_short(meta[key])} is not {want}" for key, (ok, want) in top.items()
+    problems = [f"{key}={brief(meta[key], 60)} is not {want}" for key, (ok, want) in top.items()
                 if key in meta and not ok(meta[key])]
     env_kwargs = meta.get("env_kwargs")
     if isinstance(env_kwargs, dict) and env_kwargs.get("env", "slide-out") == "slide-out":
-        problems += [f"env_kwargs.{key}={_short(env_kwargs[key])} is not {want}" for key, (ok, want) in env.items()
+        problems += [f"env_kwargs.{key}={brief(env_kwargs[key], 60)} is not {want}" for key, (ok, want) in env.items()
                      if key in env_kwargs and not ok(env_kwargs[key])]
     return problems

@@ -37,6 +37,8 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
+from safemanip.util.values import brief, is_int
+
 POLICY_NAME = re.compile(r"(?P<algorithm>[a-z0-9]+)-k(?P<k>\d+)-(?P<constraints>conservative|all)"
                          r"(?:-(?P<variant>selaware))?(?:-s(?P<train_seed>\d+))?$")
 """ALGORITHM-kK-CONSTRAINTS[-selaware][-sSEED]: what a policy file's name says it holds (``selaware``: trained with the
@@ -213,15 +215,6 @@ def load_config(name_or_path: str) -> SweepSpec:
     return SweepSpec.from_json(raw, name_or_path)
 
 
-def _is_int(value) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
-
-
-def _short(value) -> str:
-    text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
 def _validate(cfg, where: str) -> None:
     """The sweep-spec schema: known keys only, each of its type and range, every name one the registries know.
     All problems in one message."""
@@ -231,7 +224,7 @@ def _validate(cfg, where: str) -> None:
 
     if not isinstance(cfg, dict):
         raise SweepError(f"sweep {where}: a sweep spec is a JSON object of {', '.join(REQUIRED_KEYS)}, ...; got "
-                         f"{_short(cfg)}")
+                         f"{brief(cfg, 60)}")
     problems = [f"missing key {key!r}" for key in REQUIRED_KEYS if key not in cfg]
     unknown = [key for key in cfg if key not in SPEC_KEYS]
     if unknown:
@@ -248,49 +241,49 @@ def _validate(cfg, where: str) -> None:
     def str_list(key: str, value, allowed=None, nullable: bool = False) -> bool:
         ok = isinstance(value, list) and value and all(isinstance(v, str) or (nullable and v is None) for v in value)
         if not need(bool(ok), f"{key} must be a non-empty list of {'names' if allowed else 'strings'}"
-                              f"{' or null' if nullable else ''}, got {_short(value)}"):
+                              f"{' or null' if nullable else ''}, got {brief(value, 60)}"):
             return False
         for v in value:
             if allowed is not None and v not in allowed and not (nullable and v is None):
-                problems.append(f"unknown {key[:-1] if key.endswith('s') else key} {_short(v)}; choose from "
+                problems.append(f"unknown {key[:-1] if key.endswith('s') else key} {brief(v, 60)}; choose from "
                                 f"{', '.join(sorted(allowed))}")
         return True
 
     def counts(key: str, value) -> bool:
-        return need(isinstance(value, list) and bool(value) and all(_is_int(n) and 0 <= n <= MAX_OBJECTS for n in value),
-                    f"{key} must be a non-empty list of object counts 0..{MAX_OBJECTS}, got {_short(value)}")
+        return need(isinstance(value, list) and bool(value) and all(is_int(n) and 0 <= n <= MAX_OBJECTS for n in value),
+                    f"{key} must be a non-empty list of object counts 0..{MAX_OBJECTS}, got {brief(value, 60)}")
 
     name = cfg["name"]
     need(isinstance(name, str) and PLAIN_NAME.fullmatch(name) is not None and ".." not in name,
-         f"name must be a plain file name (letters, digits, '.', '_', '-'; no folders), got {_short(name)}: it names "
+         f"name must be a plain file name (letters, digits, '.', '_', '-'; no folders), got {brief(name, 60)}: it names "
          f"the table and figure written inside the output folder")
     if "folder" in cfg:
         folder = cfg["folder"]
         need(isinstance(folder, str) and all(PLAIN_NAME.fullmatch(part) and part != ".." for part in folder.split("/")),
-             f"folder must be a relative path of plain names under results/ (e.g. 'exit/fig4'), got {_short(folder)}")
+             f"folder must be a relative path of plain names under results/ (e.g. 'exit/fig4'), got {brief(folder, 60)}")
     for key in ("title", "description"):
         if key in cfg:
-            need(isinstance(cfg[key], str) and len(cfg[key]) <= 2000, f"{key} must be a string, got {_short(cfg[key])}")
-    need(cfg["figure"] in FIGURES, f"figure must be one of {FIGURES}, got {_short(cfg['figure'])}")
+            need(isinstance(cfg[key], str) and len(cfg[key]) <= 2000, f"{key} must be a string, got {brief(cfg[key], 60)}")
+    need(cfg["figure"] in FIGURES, f"figure must be one of {FIGURES}, got {brief(cfg['figure'], 60)}")
     need(isinstance(cfg["judge"], str) and cfg["judge"] in JUDGES,
-         f"judge must be one of {list(JUDGES)}, got {_short(cfg['judge'])}")
-    need(_is_int(cfg["episodes"]) and 1 <= cfg["episodes"] <= SEED_STRIDE,
-         f"episodes must be an integer 1..{SEED_STRIDE}, got {_short(cfg['episodes'])}")
+         f"judge must be one of {list(JUDGES)}, got {brief(cfg['judge'], 60)}")
+    need(is_int(cfg["episodes"]) and 1 <= cfg["episodes"] <= SEED_STRIDE,
+         f"episodes must be an integer 1..{SEED_STRIDE}, got {brief(cfg['episodes'], 60)}")
     if "seed" in cfg:
         most = 2**31 // SEED_STRIDE - 1
-        need(_is_int(cfg["seed"]) and 0 <= cfg["seed"] <= most,
-             f"seed (the episode seed block) must be an integer 0..{most}, got {_short(cfg['seed'])}")
+        need(is_int(cfg["seed"]) and 0 <= cfg["seed"] <= most,
+             f"seed (the episode seed block) must be an integer 0..{most}, got {brief(cfg['seed'], 60)}")
     counts("n_objects", cfg["n_objects"])
     semantics = [None]
     if "semantics" in cfg and str_list("semantics", cfg["semantics"], nullable=True):
         semantics = list(cfg["semantics"])
     policies = cfg["policies"]
     if need(isinstance(policies, list) and bool(policies),
-            f"policies must be a non-empty list of policy files, got {_short(policies)}"):
+            f"policies must be a non-empty list of policy files, got {brief(policies, 60)}"):
         for entry in policies:
             if isinstance(entry, dict):
                 if not need(set(entry) <= set(POLICY_ENTRY_KEYS) and isinstance(entry.get("path"), str),
-                            f"policy entry {_short(entry)} must be a path or {{'path', 'n_objects', 'semantics'}}"):
+                            f"policy entry {brief(entry, 60)} must be a path or {{'path', 'n_objects', 'semantics'}}"):
                     continue
                 if "n_objects" in entry:
                     counts(f"n_objects of {entry['path']}", entry["n_objects"])
@@ -300,7 +293,7 @@ def _validate(cfg, where: str) -> None:
             elif isinstance(entry, str):
                 p = entry
             else:
-                problems.append(f"policy entry {_short(entry)} must be a path or {{'path', 'n_objects', 'semantics'}}")
+                problems.append(f"policy entry {brief(entry, 60)} must be a path or {{'path', 'n_objects', 'semantics'}}")
                 continue
             if not POLICY_NAME.fullmatch(Path(p).stem):
                 problems.append(f"policy {p[:200]!r} is not named ALGORITHM-kK-CONSTRAINTS.safetensors "
@@ -313,10 +306,10 @@ def _validate(cfg, where: str) -> None:
         pairs = cfg["pairs"]
         if need(isinstance(pairs, list) and bool(pairs) and all(isinstance(p, list) and len(p) == 2
                                                                  and all(isinstance(x, str) for x in p) for p in pairs),
-                f"pairs must be a non-empty list of [selector, constraints] pairs, got {_short(pairs)}"):
+                f"pairs must be a non-empty list of [selector, constraints] pairs, got {brief(pairs, 60)}"):
             for s, c in pairs:
-                need(s in OBJECT_SELECTORS, f"unknown selector {_short(s)}")
-                need(c in CONSTRAINT_SELECTORS, f"unknown constraint selector {_short(c)}")
+                need(s in OBJECT_SELECTORS, f"unknown selector {brief(s, 60)}")
+                need(c in CONSTRAINT_SELECTORS, f"unknown constraint selector {brief(c, 60)}")
     elif "selectors" not in cfg:
         problems.append("give 'selectors' (and optionally 'constraints') or 'pairs'")
     for sem in semantics:
@@ -328,7 +321,7 @@ def _validate(cfg, where: str) -> None:
     if "scenes" in cfg:
         scenes = cfg["scenes"]
         if need(isinstance(scenes, dict) and set(scenes) <= set(SCENE_KEYS),
-                f"scenes must be an object of {', '.join(SCENE_KEYS)}, got {_short(scenes)}"):
+                f"scenes must be an object of {', '.join(SCENE_KEYS)}, got {brief(scenes, 60)}"):
             problems += _scene_problems(scenes)
     if "bounds" in cfg:
         str_list("bounds", cfg["bounds"], PLANNER_AVOID)
@@ -337,18 +330,18 @@ def _validate(cfg, where: str) -> None:
         str_list("shields", cfg["shields"], SHIELDS, nullable=True)
     extra = cfg.get("k_equals_n_selector")
     if extra is not None:
-        need(isinstance(extra, str) and extra in OBJECT_SELECTORS, f"unknown k_equals_n_selector {_short(extra)}")
+        need(isinstance(extra, str) and extra in OBJECT_SELECTORS, f"unknown k_equals_n_selector {brief(extra, 60)}")
     if "table" in cfg:
         table = cfg["table"]
         if need(isinstance(table, dict) and set(table) == {"rows", "columns"},
-                f"table must be {{'rows': [...], 'columns': [...]}}, got {_short(table)}"):
+                f"table must be {{'rows': [...], 'columns': [...]}}, got {brief(table, 60)}"):
             for part in ("rows", "columns"):
                 names = table[part]
                 if need(isinstance(names, list) and bool(names) and all(isinstance(n, str) for n in names)
                         and len(set(names)) == len(names), f"table {part} must be a non-empty list of distinct cell "
-                                                           f"fields, got {_short(names)}"):
+                                                           f"fields, got {brief(names, 60)}"):
                     bad = [n for n in names if n not in CELL_FIELDS]
-                    need(not bad, f"table {part}: unknown cell field(s) {', '.join(_short(n) for n in bad)}; choose "
+                    need(not bad, f"table {part}: unknown cell field(s) {', '.join(brief(n, 60) for n in bad)}; choose "
                                   f"from {', '.join(CELL_FIELDS)}")
             if isinstance(table.get("rows"), list) and isinstance(table.get("columns"), list):
                 both = sorted(set(map(str, table["rows"])) & set(map(str, table["columns"])))
@@ -362,11 +355,11 @@ def _scene_problems(scenes: dict) -> list[str]:
 
     problems = []
     if "layout" in scenes and not isinstance(scenes["layout"], str):
-        problems.append(f"scenes layout must be a layout's name, got {_short(scenes['layout'])}")
+        problems.append(f"scenes layout must be a layout's name, got {brief(scenes['layout'], 60)}")
     for key in ("gate_share", "exit_share"):
         value = scenes.get(key)
         if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
-            problems.append(f"scenes {key} must be a number from 0 to 1, got {_short(value)}")
+            problems.append(f"scenes {key} must be a number from 0 to 1, got {brief(value, 60)}")
     if not problems:
         try:
             SceneConfig(**scenes)

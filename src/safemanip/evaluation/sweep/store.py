@@ -12,6 +12,7 @@ from pathlib import Path
 
 from safemanip.evaluation.sweep.grid import RECORD_FIELDS, Cell, PlannerCell
 from safemanip.util.files import atomic_write_text, read_json_file
+from safemanip.util.values import is_int
 
 MAX_RESULT_BYTES = 10_000_000
 REQUIRED_FIELDS = {f.name for f in fields(Cell) if f.default is MISSING}
@@ -70,10 +71,6 @@ def _rate_ok(entry) -> bool:
             and len(entry["ci95"]) == 2 and all(num(v) for v in entry["ci95"]))
 
 
-def _is_int(value) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
-
-
 def _result_ok(result) -> bool:
     from safemanip.evaluation.episode import CATEGORIES
 
@@ -84,10 +81,10 @@ def _result_ok(result) -> bool:
         return False
     types_ok = (all(isinstance(cell[k], str) for k in ("policy", "algorithm", "policy_constraints", "selector",
                                                          "constraints", "judge"))
-                and all(_is_int(cell[k]) for k in ("k", "n_objects", "episodes", "seed"))
+                and all(is_int(cell[k]) for k in ("k", "n_objects", "episodes", "seed"))
                 and (cell["semantics"] is None or isinstance(cell["semantics"], str))
                 and (cell.get("vlm") is None or isinstance(cell["vlm"], str)))
     categories = summary.get("categories")
     return bool(types_ok and _rate_ok(summary.get("success")) and _rate_ok(summary.get("safety_violation"))
                 and isinstance(categories, dict) and all(_rate_ok(categories.get(c)) for c in CATEGORIES)
-                and _is_int(summary.get("episodes")) and isinstance(summary.get("mean_length"), (int, float)))
+                and is_int(summary.get("episodes")) and isinstance(summary.get("mean_length"), (int, float)))
