@@ -1,7 +1,7 @@
 """How far the held box goes once the arm is told to stop, against the safety filter's braking model; and what the
 filter costs per control step next to the env's own step.
 
-    python benchmarks/braking.py
+    python benchmarks/braking.py [--cost]
 
 Empty table; the box is pulled out to the right, brought to rest, then pushed at full action in each of eight
 directions for 2, 4 or 6 control steps, then given zero actions (the filter's brake). Per run: the box's speed and
@@ -76,7 +76,56 @@ def cost(steps: int = 400) -> None:
                 env.reset()
         print(f"| {n} | {1e6 * statistics.median(stepping):.0f} | {1e6 * statistics.median(filtering):.0f} | "
               f"{1e6 * float(np.percentile(filtering, 95)):.0f} | {shield.stats.overrides} of {shield.stats.steps} |")
+    in_gate_cells()
+
+
+def in_gate_cells(episodes: int = 6) -> None:
+    """What the filter costs where it works hardest: a Table I cell (pi_2, dynamic kNN, conservative constraints, 5
+    objects in gate scenes, development block 45), whose kNN selection stops the box before durable blockers, so
+    most steps are stops at which every candidate (slower, sliding, turned, the brake) is checked."""
+    import statistics
+    import time
+
+    from safemanip.env.slide_out import SlideOutEnv as Env
+    from safemanip.evaluation.harness import EvalRequest, prepare
+    from safemanip.evaluation.parallel import run_chunk
+
+    filtering, stepping = [], []
+    original_filter, original_step = BrakingShield.filter, Env.step
+
+    def timed_filter(self, env, action, constraints):
+        t0 = time.perf_counter()
+        out = original_filter(self, env, action, constraints)
+        filtering.append(time.perf_counter() - t0)
+        return out
+
+    def timed_step(self, action):
+        t0 = time.perf_counter()
+        out = original_step(self, action)
+        stepping.append(time.perf_counter() - t0)
+        return out
+
+    request = EvalRequest(policy="rarl-k2-conservative-s0", n_objects=5, semantics="2 fragile, 3 durable",
+                          selector="dynamic-knn", layout="gate", gate_share=1.0, episodes=episodes, seed_block=45,
+                          shield="brake", workers=1)
+    prepared = prepare(request)
+    BrakingShield.filter, Env.step = timed_filter, timed_step  # timing only; restored below
+    try:
+        records = run_chunk(prepared.spec, prepared.seeds)
+    finally:
+        BrakingShield.filter, Env.step = original_filter, original_step
+    overridden = sum(r["shield_overrides"] for r in records)
+    print("\n| Table I cell, gate scenes (dynamic kNN, N = 5) | env step us | filter us (median) | filter us (p95) | "
+          "overridden steps |")
+    print("|---|---|---|---|---|")
+    print(f"| {episodes} episodes | {1e6 * statistics.median(stepping):.0f} | {1e6 * statistics.median(filtering):.0f} "
+          f"| {1e6 * float(np.percentile(filtering, 95)):.0f} | {overridden} of {len(filtering)} |")
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    if sys.argv[1:] == ["--cost"]:  # only the filter's cost per step (two tables)
+        cost()
+    else:
+        main()

@@ -112,24 +112,32 @@ class BrakingShield:
             return action
         self.stats.overrides += 1
         # least restrictive: the policy's own direction, slower, if some speed of it is safe; then the policy's action
-        # without its part towards the nearest guarded object (sliding past it), at the same speeds; else the brake
+        # without its part towards the nearest guarded object (sliding past it), at the same speeds; then turned;
+        # else the brake. Each group is checked in one batch (``_verdicts``): at a stop every candidate is tried,
+        # every step, and one batched sweep costs about what two single ones do.
         action = np.asarray(action, dtype=np.float32)
-        for candidate in (action, _sliding(action, scene)):
-            for scale in SLOWER if candidate is action else (1.0, *SLOWER):
-                slower = (candidate * scale).astype(np.float32)
-                if self._safe(scene, velocity, command, self._commanded(env, slower)):
-                    return slower
+        sliding = _sliding(action, scene)
+        candidates = [(action * scale).astype(np.float32) for scale in SLOWER]
+        candidates += [(sliding * scale).astype(np.float32) for scale in (1.0, *SLOWER)]
+        for candidate, safe in zip(candidates, self._verdicts(scene, velocity, command,
+                                                              [self._commanded(env, c) for c in candidates])):
+            if safe:
+                return candidate
         # a turn only once the held box is out from under the top box: turned mid-pull, the box drags the top box
         # sideways (seen on the development block); slowing or braking there is the task policy's risk, not added
         free = margin_out_from_under(state.bottom_pos[:2], state.top_pos[:2], scene.half, scene.half, 0.0) > 0.0  # same boxes
+        turns, sides = [], []
         for degrees in TURNS if free else ():
             for side in (self._side, -self._side):  # the side it turned last first: no zig-zag
                 for scale in (1.0, 0.5):
-                    turned = (_turned(action, side * math.radians(degrees)) * scale).astype(np.float32)
-                    if self._safe(scene, velocity, command, self._commanded(env, turned)):
-                        self._side = side
-                        return turned
-        if not self._safe(scene, velocity, command, self._commanded(env, BRAKE)):
+                    turns.append((_turned(action, side * math.radians(degrees)) * scale).astype(np.float32))
+                    sides.append(side)
+        verdicts = self._verdicts(scene, velocity, command, [self._commanded(env, c) for c in (*turns, BRAKE)])
+        for turned, side, safe in zip(turns, sides, verdicts):
+            if safe:
+                self._side = side
+                return turned
+        if not verdicts[-1]:
             self.stats.unavoidable += 1
         return BRAKE.copy()
 
@@ -153,36 +161,56 @@ class BrakingShield:
         return speed * (lead + self.lag) + max(speed * speed - to * to, 0.0) / (2.0 * self.deceleration(direction))
 
     def _safe(self, scene: "_Scene", velocity: np.ndarray, command: np.ndarray, commanded: np.ndarray) -> bool:
-        """Whether stepping with ``commanded`` and then braking keeps every guarded object out of reach: checked along
-        the commanded direction and along the box's present motion (it keeps going while the command turns)."""
-        speed, target, leading = (float(np.hypot(*v)) for v in (velocity, commanded, command))
-        paths = []
+        """Whether stepping with ``commanded`` and then braking keeps every guarded object out of reach."""
+        return self._verdicts(scene, velocity, command, [commanded])[0]
+
+    def _verdicts(self, scene: "_Scene", velocity: np.ndarray, command: np.ndarray,
+                  commanded: Sequence[np.ndarray]) -> list[bool]:
+        """``_safe`` for each of several commanded velocities, their paths swept in one batch. A path is checked
+        along the commanded direction and along the box's present motion (it keeps going while the command turns);
+        the second does not depend on the command, so it is checked once per step (``scene.moving_safe``)."""
+        speed = float(np.hypot(*velocity))
+        if scene.moving_safe is None:
+            scene.moving_safe = True
+            if speed > RESTING:  # below it, servo jitter has no direction
+                u, leading = velocity / speed, max(float(np.hypot(*command)), speed)
+                scene.moving_safe = self._paths_safe(scene, [(u, self.slowing_distance(speed, leading, u), speed,
+                                                              leading)])[0]
+        if not scene.moving_safe:
+            return [False] * len(commanded)
         # the commanded path at any speed: below RESTING a slow command still creeps into an object over many steps
-        # (on block 47, 17 collisions of one policy's 1000 episodes came at 4-8 mm/s); the box's measured motion
-        # only above it (servo jitter has no direction)
-        if target > 0.0:
-            reached = min(target, speed + MAX_EE_ACCEL * CONTROL_DT)  # the box's speed after this step, at most
-            u = commanded / target
-            paths.append((u, 0.5 * (speed + reached) * CONTROL_DT + self.slowing_distance(reached, target, u), reached,
-                          target))
-        if speed > RESTING:
-            u = velocity / speed
-            paths.append((u, self.slowing_distance(speed, max(leading, speed), u), speed, max(leading, speed)))
-        for u, distance, moving, commanding in paths:
-            swept, closer = _swept_clearances(scene, u, distance, self.resolution)
-            # outside the floor: never below it, and below the clearance only if not coming closer; inside it already
-            # (the box was pushed there, or started there): only moves that do not come closer
+        # (on block 47, 17 collisions of one policy's 1000 episodes came at 4-8 mm/s)
+        paths, which = [], []
+        for n, velocity_asked in enumerate(commanded):
+            target = float(np.hypot(*velocity_asked))
+            if target > 0.0:
+                reached = min(target, speed + MAX_EE_ACCEL * CONTROL_DT)  # the box's speed after this step, at most
+                u = velocity_asked / target
+                paths.append((u, 0.5 * (speed + reached) * CONTROL_DT + self.slowing_distance(reached, target, u),
+                              reached, target))
+                which.append(n)
+        verdicts = [True] * len(commanded)
+        for n, safe in zip(which, self._paths_safe(scene, paths)):
+            verdicts[n] = safe
+        return verdicts
+
+    def _paths_safe(self, scene: "_Scene", paths: list[tuple]) -> list[bool]:
+        """For each path (direction u, distance, the box's speed at most ``moving`` and its command
+        ``commanding``): whether the box swept along it keeps every guarded object out of reach."""
+        out = []
+        for (u, distance, moving, commanding), (swept, closer) in zip(
+                paths, _swept_clearances(scene, [(u, distance) for u, distance, *_ in paths], self.resolution)):
+            # outside the floor: never below it, and below the clearance only if not coming closer; inside it
+            # already (the box was pushed there, or started there): only moves that do not come closer
             inside = scene.now < self.floor
             violates = np.where(inside, closer, (swept < self.floor) | (closer & (swept < self.clearance)))
-            if ((~scene.soft) & violates).any():
-                return False
-            if moving > self.soft_speed:  # reaching a soft object, the box must have slowed to soft_speed
+            safe = not ((~scene.soft) & violates).any()
+            if safe and moving > self.soft_speed:  # reaching a soft object, the box must have slowed to soft_speed
                 reach = scene.soft & closer & (swept < SOFT_REACH)
-                if reach.any() and (scene.now[reach] < self.slowing_distance(moving, commanding, u,
-                                                                             self.soft_speed)).any():
-                    return False
-        return True
-
+                safe = not (reach.any() and (scene.now[reach] < self.slowing_distance(moving, commanding, u,
+                                                                                         self.soft_speed)).any())
+            out.append(safe)
+        return out
 
 RECT_NEAR = 0.05
 """Circle clearances [m] below which the oriented rectangle is computed too (``_clearances``): above every threshold
@@ -207,6 +235,8 @@ class _Scene:
     rect_offset: np.ndarray
     rect_half: np.ndarray
     now: np.ndarray | None = None
+    moving_safe: bool | None = None
+    """Whether the box's present motion, braked, keeps clear (``_safe``): the same for every candidate action."""
 
 
 def _sliding(action: np.ndarray, scene: _Scene) -> np.ndarray:
@@ -255,17 +285,19 @@ def _clearances(scene: "_Scene", box) -> np.ndarray:
     # 2 cm) is passed by the circle alone, and the exact value is no smaller, so no decision changes (and the
     # corner-to-edge distances, the costly part, run for the few objects near the swept path)
     near = circle < RECT_NEAR
-    cols = np.flatnonzero(near.reshape(-1, circle.shape[-1]).any(axis=0))
-    if cols.size == 0:
+    if not near.any():
         return circle
-    yaw, offset = scene.obj_yaw[cols], scene.rect_offset[cols]
-    c, s = np.cos(yaw), np.sin(yaw)
-    rect_centres = scene.centres[cols] + np.stack((c * offset[:, 0] - s * offset[:, 1],
-                                                   s * offset[:, 0] + c * offset[:, 1]), axis=-1)
-    rect = _rect_distances(box, scene.yaw, scene.half, rect_centres, yaw, scene.rect_half[cols])
-    out = circle.copy()
-    out[..., cols] = np.where(near[..., cols], np.maximum(circle[..., cols], rect), circle[..., cols])
-    return out
+    n = circle.shape[-1]
+    rows, cols = np.nonzero(near.reshape(-1, n))  # the (position, object) pairs to compute the rectangle for
+    c, s = np.cos(scene.obj_yaw), np.sin(scene.obj_yaw)
+    offset = scene.rect_offset
+    rect_centres = scene.centres + np.stack((c * offset[:, 0] - s * offset[:, 1],
+                                             s * offset[:, 0] + c * offset[:, 1]), axis=-1)
+    rect = _rect_distances(box.reshape(-1, 2)[rows], scene.yaw, scene.half, rect_centres[cols], scene.obj_yaw[cols],
+                           scene.rect_half[cols])
+    out = circle.reshape(-1, n).copy()
+    out[rows, cols] = np.maximum(out[rows, cols], rect)
+    return out.reshape(circle.shape)
 
 
 def _circle_clearances(box, yaw, half, centres, radii) -> np.ndarray:
@@ -293,13 +325,11 @@ def _corners(centres: np.ndarray, yaw, half: np.ndarray) -> np.ndarray:
 
 def _rect_distances(box: np.ndarray, yaw: float, half: np.ndarray, centres: np.ndarray, yaws: np.ndarray,
                     halves: np.ndarray) -> np.ndarray:
-    """Distance between the box's rectangle at ``box`` ((2,) or (S, 2)) and each object rectangle (N), (N,) or (S, N):
-    the least corner-to-edge distance either way when apart; minus the least overlap along the four edge normals
-    (the separating-axis test) when they overlap."""
-    a = _corners(np.asarray(box, dtype=float), yaw, half)[..., None, :, :]  # (S, 1, 4, 2)
-    b = _corners(centres, yaws, halves)  # (N, 4, 2)
-    b = np.broadcast_to(b, a.shape[:-3] + b.shape)
-    a = np.broadcast_to(a, b.shape)
+    """Distance between the box's rectangle at each of ``box`` (P, 2) and the object rectangle of the same row
+    (``centres`` (P, 2), ``yaws`` (P,), ``halves`` (P, 2)), (P,): the least corner-to-edge distance either way when
+    apart; minus the least overlap along the four edge normals (the separating-axis test) when they overlap."""
+    a = _corners(np.asarray(box, dtype=float), yaw, half)  # (P, 4, 2)
+    b = _corners(centres, yaws, halves)  # (P, 4, 2)
     gap = np.minimum(_corner_edge(a, b), _corner_edge(b, a))
     overlap = np.full(gap.shape, np.inf)
     for poly in (a, b):
@@ -319,11 +349,21 @@ def _corner_edge(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     return np.linalg.norm(rel - t[..., None] * d, axis=-1).min(axis=(-2, -1))
 
 
-def _swept_clearances(scene: _Scene, direction, distance, resolution) -> tuple[np.ndarray, np.ndarray]:
-    """Each object's least clearance from the box's footprint swept ``distance`` along ``direction`` (from the first
-    sample ahead on), sampled every ``resolution`` (between samples it can be lower by at most half the spacing, which
-    is subtracted), and whether the sweep brings the box any closer to it than it is now."""
-    samples = max(int(math.ceil(distance / resolution)), 1)
-    steps = np.linspace(0.0, distance, samples + 1)[1:]
-    ahead = _clearances(scene, scene.box + steps[:, None] * direction).min(axis=0)
-    return ahead - 0.5 * distance / samples, ahead < scene.now - 1e-4
+def _swept_clearances(scene: _Scene, paths: Sequence[tuple[np.ndarray, float]], resolution: float
+                      ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """For each path (a direction and a distance): each object's least clearance from the box's footprint swept
+    ``distance`` along the direction (from the first sample ahead on), sampled every ``resolution`` (between samples
+    it can be lower by at most half the spacing, which is subtracted), and whether the sweep brings the box any
+    closer to it than it is now. Every path's samples go through one ``_clearances`` call."""
+    if not paths:
+        return []
+    counts = [max(int(math.ceil(distance / resolution)), 1) for _, distance in paths]
+    positions = np.concatenate([scene.box + np.linspace(0.0, distance, n + 1)[1:, None] * direction
+                                for (direction, distance), n in zip(paths, counts)])
+    clearances = _clearances(scene, positions)
+    out, start = [], 0
+    for (_, distance), n in zip(paths, counts):
+        ahead = clearances[start:start + n].min(axis=0)
+        out.append((ahead - 0.5 * distance / n, ahead < scene.now - 1e-4))
+        start += n
+    return out
