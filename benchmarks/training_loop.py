@@ -43,7 +43,6 @@ import argparse
 import csv
 import json
 import os
-import platform
 import statistics
 import subprocess
 import sys
@@ -58,21 +57,11 @@ from safemanip.rl.buffer import ReplayBuffer
 from safemanip.rl.config import load_run_config
 from safemanip.rl.envs import env_builder
 from safemanip.rl.learner import Learner
-from safemanip.rl.precision import cpu_bf16_flags
+from safemanip.rl.precision import cpu_bf16_flags, cpu_model
 
 RECIPE = Path(__file__).resolve().parents[1] / "results" / "training" / "rarl-k2-conservative-s0" / "config.json"
 WINDOW_S = 30.0
 SLICE_S = 5.0
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.split(":")[0].strip() in ("model name", "Model"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def learner_alone(cfg, seconds: float) -> tuple[list[float], str]:

@@ -292,6 +292,7 @@ def test_train_runs_a_set_network_with_selection_aware_dynamic_k_and_records_it(
     run = train(cfg, progress=False, env_factory=SelectedSlotsEnv)
     summary = json.loads((run / "summary.json").read_text())
     assert summary["updates"] > 0 and summary["learner"]["dtype"] in ("fp32", "bf16") and summary["learner"]["reason"]
+    assert summary["learner"]["cpu"]  # the speeds in the record belong to this CPU
     actor, meta = load_policy(run / "policy.safetensors")
     assert isinstance(actor, NumpySetActor) and meta["network"] == "set" and meta["k"] == 3
     assert meta["train_config"]["scene_objects"] == 5 and meta["env_kwargs"]["n_objects"] == 3  # eval sees a k=3 policy

@@ -10,6 +10,7 @@ Master weights, optimiser state, losses and Bellman targets stay fp32 in either 
 
 from __future__ import annotations
 
+import platform
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -55,6 +56,17 @@ def cpu_bf16_flags() -> set[str]:
         if line.startswith("flags"):
             return set(line.split(":", 1)[1].split()) & {"avx512_bf16", "amx_bf16"}
     return set()
+
+
+def cpu_model() -> str:
+    """The CPU's model name (from /proc/cpuinfo on Linux): every speed a run or benchmark reports belongs to it."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.split(":")[0].strip() in ("model name", "Model"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
 
 
 def _time_forward(device: torch.device, dtype: torch.dtype | None, repeats: int = 5) -> float:

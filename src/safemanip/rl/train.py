@@ -28,6 +28,7 @@ from safemanip.rl.config import ConfigError, TrainConfig, load_run_config
 from safemanip.rl.envs import EnvBuilder, env_builder
 from safemanip.rl.learner import Learner
 from safemanip.rl.networks import actor_arrays
+from safemanip.rl.precision import cpu_model
 from safemanip.rl.rollout import EvalRequest, evaluate_weights, make_evaluator
 from safemanip.util.files import OutputLock, atomic_write_text, check_output_dir, parse_json, read_json_file
 from safemanip.util.procs import WorkerDied, describe_exit, stop_on_signals
@@ -536,7 +537,7 @@ class Trainer:
         self.log_file.close()
         summary = {"env_steps": self.env_steps, "updates": self.updates, "wall_s": round(self.elapsed(), 1),
                    "final_eval": self.last_eval_result, "best_eval": self.best, "interrupted": self.interrupted,
-                   "worker_failed": self.worker_failed, "learner": self.learner.precision.as_dict()}
+                   "worker_failed": self.worker_failed, "learner": {**self.learner.precision.as_dict(), "cpu": cpu_model()}}
         if (run_dir / "init_from.json").exists():  # whose networks this run started from: count its training too
             try:
                 summary["init_from"] = read_json_file(run_dir / "init_from.json", max_bytes=100_000)
