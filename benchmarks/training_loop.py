@@ -1,7 +1,7 @@
 """The training loop's update rate against its learner's standalone rate, in one run (issue 42).
 
     python benchmarks/training_loop.py [--config results/training/rarl-k2-conservative-s0/config.json]
-        [--steps 400000] [--learner-seconds 20] [--precision auto|bf16|fp32] [--out RUN_FOLDER]
+        [--steps 400000] [--learner-seconds 20] [--precision auto|bf16|fp32] [--out RUN_FOLDER] [--learner-only]
 
 Rows:
 
@@ -9,6 +9,10 @@ Rows:
                      sampling included, from a full replay buffer of the config's size (random transitions of the
                      env's observation size): the rate the loop can reach at most. Measured in 5 s slices before the
                      run and again after it; the median of all slices is the reference of the ratios.
+  learner beside     the same, while another process steps the config's env with random actions on the other core:
+  an env             the learner's rate when a rollout worker keeps its core busy (the two share caches and memory
+                     bandwidth), so the most a loop with one worker on a 2-core machine can reach. ``--learner-only``
+                     prints the learner rows alone (no run).
   loop, mean         the run's updates per second over its training phase: from the first row of its scalars.csv
                      with an update to its last row (so neither the warm-up before ``learning_starts``, in which the
                      data rate allows no update, nor the final evaluation and checkpoint).
@@ -95,6 +99,38 @@ def learner_alone(cfg, seconds: float) -> tuple[list[float], str]:
             done += 1
         rates.append(done / (time.perf_counter() - t0))
     return rates, f"{learner.precision.dtype} ({learner.precision.reason})"
+
+
+ENV_STEPPER = """
+import json, sys
+import numpy as np
+from safemanip.rl.envs import env_builder
+from safemanip.util.procs import die_with_parent
+die_with_parent(int(sys.argv[2]))
+env, rng = env_builder(json.loads(sys.argv[1]))(), np.random.default_rng(0)
+env.reset(seed=0)
+print("stepping", flush=True)
+while True:
+    _, _, terminated, truncated, _ = env.step(rng.uniform(-1, 1, 3).astype(np.float32))
+    if terminated or truncated:
+        env.reset()
+"""
+
+
+def learner_beside_an_env(cfg, seconds: float) -> list[float]:
+    """``learner_alone`` while another process steps the config's env with random actions on the other core: what
+    the learner can reach at most in a loop whose rollout worker keeps its core busy (the two share caches and memory
+    bandwidth)."""
+    stepper = subprocess.Popen([sys.executable, "-c", ENV_STEPPER, json.dumps(cfg.rollout_env_kwargs), str(os.getpid())],
+                               stdout=subprocess.PIPE, text=True)
+    try:
+        if stepper.stdout.readline().strip() != "stepping":  # it has built its env and steps from here on
+            sys.exit("the env-stepping process failed to start")
+        rates, _ = learner_alone(cfg, seconds)
+    finally:
+        stepper.kill()
+        stepper.wait()
+    return rates
 
 
 def log_points(run: Path) -> list[tuple[float, int]]:
@@ -233,6 +269,8 @@ def main() -> None:
     p.add_argument("--precision", choices=("auto", "bf16", "fp32"), help="override the config's (bf16 is emulated, "
                    "ten times slower, on a CPU without native bf16)")
     p.add_argument("--out", type=Path, help="the run's folder (default: a new temporary folder; kept)")
+    p.add_argument("--learner-only", action="store_true", help="only the learner rows (alone, and beside an env "
+                   "stepping on the other core), no run")
     args = p.parse_args()
     cfg, _ = load_run_config(args.config)
     if args.steps is not None:
@@ -249,6 +287,16 @@ def main() -> None:
           f"budget {cfg.total_env_steps} env steps; run folder {run}")
 
     before, precision = learner_alone(cfg, args.learner_seconds)
+    beside = learner_beside_an_env(cfg, args.learner_seconds)
+    if args.learner_only:
+        after, _ = learner_alone(cfg, args.learner_seconds)
+        ref = statistics.median(before + after)
+        print(f"learner: {precision}\n\n| row | updates/s | vs learner alone |\n|---|---|---|")
+        for name, rates in (("learner alone, before", before), ("learner beside an env stepping on the other core",
+                                                                 beside), ("learner alone, after", after)):
+            print(f"| {name} ({min(rates):.1f}-{max(rates):.1f}) | {statistics.median(rates):.1f} | "
+                  f"{statistics.median(rates) / ref:.2f}x |")
+        return
     command = [sys.executable, "-m", "safemanip.cli", "train", "--config", str(args.config), "--out", str(run),
                "--total-env-steps", str(cfg.total_env_steps), "--precision", cfg.precision, "--no-progress"]
     t0 = time.perf_counter()
@@ -283,6 +331,8 @@ def main() -> None:
     row(f"learner alone, before the run (median of {len(before)} x {SLICE_S:g} s, "
         f"{min(before):.1f}-{max(before):.1f})", statistics.median(before))
     row(f"learner alone, after the run ({min(after):.1f}-{max(after):.1f})", statistics.median(after))
+    row(f"learner beside an env stepping on the other core ({min(beside):.1f}-{max(beside):.1f}): the most a "
+        f"2-core loop can reach", statistics.median(beside))
     row(f"loop, mean over training ({loop['updates']} updates in {loop['span_s']:.0f} s)", loop["mean"])
     worst = "loop, worst 30 s window" + (f" (from {loop['worst_at']:.0f} s)" if loop["worst"] is not None
                                           else " (training shorter than 30 s)")
