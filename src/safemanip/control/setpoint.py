@@ -13,8 +13,9 @@ An action (a velocity request in the unit ball) becomes the end-effector velocit
 
 then the result is limited to the arm's Cartesian speed and acceleration (``limit_ee_velocity``).
 
-``plan`` is pure, so the env's step and a safety filter (``safety/braking.py``, which must know what the arm will
-really be told) compute the same command from the same state; ``commit`` makes a plan the new state.
+``plan`` is pure (it changes nothing, so a caller may ask what an action would command); ``commit`` makes a plan the
+new state. The safety filter (``safety/braking.py``) predicts from the same curve, limits and last command, without
+the hold point's pull (docs/safety.md).
 """
 
 from __future__ import annotations

@@ -139,7 +139,4 @@ class EnvConfig:
                 values["classes"] = parse_semantics(values["classes"])
             except ValueError as err:
                 raise EnvConfigError(f"invalid env settings: {err}") from None
-        for name in ("names", "classes", "constraints"):
-            if isinstance(values.get(name), list):
-                values[name] = tuple(values[name])
-        return cls(**values)
+        return cls(**values)  # lists become tuples in __post_init__
