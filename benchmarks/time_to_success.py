@@ -41,7 +41,7 @@ def main() -> None:
         from safemanip.rl.config import TrainConfig
         from safemanip.rl.train import train
 
-        cfg = TrainConfig(algorithm=args.algorithm, k=2, constraints="conservative", minutes=args.minutes,
+        cfg = TrainConfig(algorithm=args.algorithm, k=2, env={"constraints": "conservative"}, minutes=args.minutes,
                           gamma_start=0.9, seed=args.seed, out_dir=str(args.out))
         runs.append(train(cfg, progress=True))
     if not runs:

@@ -96,7 +96,8 @@ def make_policy(path, k, constraints="conservative", hidden=(16, 16), seed=0, go
             arrays += [rng.normal(0, 1 / np.sqrt(sizes[i]), (sizes[i + 1], sizes[i])).astype(np.float32),
                        np.zeros(sizes[i + 1], np.float32)]
     meta = {"algorithm": "rarl", "k": k, "constraints": constraints, "obs_dim": d, "act_dim": 3,
-            "hidden": list(hidden), "env_kwargs": {"n_objects": k, "constraints": constraints,
+            "hidden": list(hidden), "env_kwargs": {"n_objects": k,
+                                                   "constraints": "random" if constraints == "all" else constraints,
                                                    "near_path_fraction": 0.5, "max_episode_steps": 300,
                                                    "embodiment": embodiment}}
     if embodiment is None:  # a policy from before the Panda arm: its metadata names no embodiment

@@ -64,15 +64,15 @@ def _bad_policies(tmp: Path) -> dict[str, tuple[str, str]]:
         "k": 0, "constraints": "conservative", "env_kwargs": {"env": "toy-double-integrator"}}), "not the slide-out task")
     files["policy-from-before-the-arm"] = (make_policy(tmp / "legacy.safetensors", 2, embodiment=None),
                                            "predates the Panda arm")
-    # the metadata format written before 2026-12-01 (retired in issue 43): refused with what to do, never converted
-    retired = {"algorithm": "rarl", "k": 1, "constraints": "conservative", "obs_dim": 26, "act_dim": 3, "hidden": [8],
-               "env_kwargs": {"n_objects": 1, "max_episode_steps": 300, "embodiment": "panda"}}
-    files["retired-env-factory"] = (policy_file(tmp / "factory.safetensors", meta={
-        **retired, "env_kwargs": {"factory": "safemanip.env.slide_out:SlideOutEnv", "n_objects": 1}}),
-        "format written before 2026-12-01 (env_kwargs.factory), retired in issue 43 and no longer read; re-train")
-    files["retired-train-config"] = (policy_file(tmp / "nobjects.safetensors", meta={
-        **retired, "train_config": {"n_objects": 1, "env_factory": None}}),
-        "format written before 2026-12-01 (train_config.n_objects, train_config.env_factory), retired in issue 43")
+    # env settings the env does not take (the retired format's env_kwargs.factory among them): never imported
+    good = {"algorithm": "rarl", "k": 1, "constraints": "conservative", "obs_dim": 26, "act_dim": 3, "hidden": [8],
+            "env_kwargs": {"n_objects": 1, "max_episode_steps": 300, "embodiment": "panda"}}
+    files["unknown-env-setting"] = (policy_file(tmp / "factory.safetensors", meta={
+        **good, "env_kwargs": {"factory": "safemanip.env.slide_out:SlideOutEnv", "n_objects": 1}}),
+        "env_kwargs: unknown setting(s) ['factory']")
+    # the format written before 2026-12-08 (env settings flat in the training config), retired in issue 43
+    files["retired-format"] = (policy_file(tmp / "flat.safetensors", meta=good, fmt="safemanip-policy/1"),
+                               "is a policy of the retired format 'safemanip-policy/1'")
     files["missing-file"] = (str(tmp / "nowhere.safetensors"), "no policy file")
     files["folder-without-policy"] = (str(tmp), "holds no policy.safetensors")
     return files
@@ -81,7 +81,7 @@ def _bad_policies(tmp: Path) -> dict[str, tuple[str, str]]:
 BAD_POLICIES = ["truncated", "empty", "text", "huge-header", "header-not-json", "bad-offsets", "not-a-policy",
                 "missing-key", "meta-not-json", "meta-nan", "nan-weights", "shapes-do-not-chain",
                 "meta-shape-mismatch", "meta-lacks-k", "meta-k-not-int", "toy-policy", "policy-from-before-the-arm",
-                "retired-env-factory", "retired-train-config", "missing-file", "folder-without-policy"]
+                "unknown-env-setting", "retired-format", "missing-file", "folder-without-policy"]
 
 
 @pytest.mark.parametrize("case", BAD_POLICIES)
@@ -93,7 +93,7 @@ def test_eval_refuses_a_bad_policy_file(capsys, tmp_path, case):
 
 
 @pytest.mark.parametrize("case", ["truncated", "nan-weights", "missing-key", "policy-from-before-the-arm",
-                                  "retired-train-config"])
+                                  "retired-format"])
 def test_demo_refuses_a_bad_policy_file(capsys, tmp_path, case):
     path, message = _bad_policies(tmp_path)[case]
     assert_refused(capsys, ["demo", "--policy", path, "--no-video", "--out", tmp_path / "d"], message)
@@ -226,8 +226,9 @@ EVIL = {"env_factory": "subprocess:getoutput", "extra_env_kwargs": {"cmd": "touc
 
 @pytest.mark.parametrize("config,message", [
     (EVIL, "env_factory 'subprocess:getoutput' is not accepted"),
-    ({"env": "subprocess:getoutput"}, "env must be one of the registered envs"),
-    ({"env": "toy-double-integrator", "extra_env_kwargs": {"cmd": "x"}}, "not accepted by env"),
+    ({"env_name": "subprocess:getoutput"}, "env_name must be one of the registered envs"),
+    ({"env": "subprocess:getoutput"}, "env as a name at the top level of a training config"),
+    ({"env_name": "toy-double-integrator", "extra_env_kwargs": {"cmd": "x"}}, "not accepted by env"),
     ({"extra_env_kwargs": {"max_episode_steps": 5}}, "extra_env_kwargs apply to non-default envs only"),
     ({"learning_rat": 1e-3}, "unknown config key"),
     ({"hidden": [1e9]}, "hidden must be a list of integers"),
@@ -238,17 +239,20 @@ EVIL = {"env_factory": "subprocess:getoutput", "extra_env_kwargs": {"cmd": "touc
     ({"eval_episodes": 0}, "eval_episodes must be in [1, 100,000]"),
     ({"n_collectors": 10**6}, "n_collectors must be in [1, 64]"),
     # the selection-aware env is the registry's, never a module named by a config
-    ({"env": "selection:SelectedSlotsEnv"}, "env must be one of the registered envs"),
-    ({"env": "safemanip.selection.training_env:SelectedSlotsEnv"}, "env must be one of the registered envs"),
-    ({"env": "slide-out-selected"}, "env must be one of the registered envs"),
+    ({"env_name": "selection:SelectedSlotsEnv"}, "env_name must be one of the registered envs"),
+    ({"env_name": "safemanip.selection.training_env:SelectedSlotsEnv"}, "env_name must be one of the registered envs"),
+    ({"env_name": "slide-out-selected"}, "env_name must be one of the registered envs"),
     ({"env_factory": "safemanip.selection.training_env:SelectedSlotsEnv", "scene_objects": 4},
      "env_factory 'safemanip.selection.training_env:SelectedSlotsEnv' is not accepted"),
     # the config format written before 2026-12-01 (retired in issue 43): refused with what to do, never converted
     ({"env_factory": "safemanip.env.slide_out:SlideOutEnv"}, "retired in issue 43, and nothing in a config is imported"),
-    ({"env_factory": None, "k": 2}, "Name the env with 'env', one of ['slide-out', 'toy-double-integrator']"),
+    ({"env_factory": None, "k": 2}, "Name the env with 'env_name', one of ['slide-out', 'toy-double-integrator']"),
     ({"n_objects": 2}, "the policy's object slots are 'k' and a larger training scene is 'scene_objects'"),
     ({"n_objects": 2, "k": 2}, "in a config file of your own, drop it and use those two keys"),
-    ({"env": "toy-double-integrator", "scene_objects": 4}, "scene_objects (selection-aware training) works on"),
+    ({"env_name": "toy-double-integrator", "scene_objects": 4}, "scene_objects (selection-aware training) works on"),
+    ({"env": {"layout": "tight"}}, "invalid env settings: layout must be one of"),
+    ({"env": {"n_objects": 3}}, "env.n_objects is k's (2), got 3"),
+    ({"layout": "gate"}, "layout at the top level of a training config: that is the format written before 2026-12-08"),
     ({"device": "cuda:x"}, "device must be one of"),
     ({"set_embed": 10**6}, "set_embed must be in [1, 4,096]"),
     ({"selection_radius": -1.0}, "selection_radius must be in (0, 10]"),

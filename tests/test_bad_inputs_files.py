@@ -128,14 +128,18 @@ GOOD_META = {"algorithm": "rarl", "k": 1, "constraints": "conservative", "obs_di
 
 
 @pytest.mark.parametrize("change,message", [
-    ({"env_kwargs": {"near_path_fraction": "x"}}, "env_kwargs.near_path_fraction='x' is not a number in [0, 1]"),
-    ({"env_kwargs": {"near_path_fraction": 7}}, "env_kwargs.near_path_fraction=7 is not a number in [0, 1]"),
-    ({"env_kwargs": {"action_curve": [1, 2]}}, "env_kwargs.action_curve=[1, 2] is not a number from 1 to 4"),
-    ({"env_kwargs": {"clear_route": "no"}}, "env_kwargs.clear_route='no' is not true or false"),
-    ({"env_kwargs": {"object_size": 1}}, "env_kwargs.object_size=1 is not true or false"),
-    ({"env_kwargs": {"layout": 5}}, "env_kwargs.layout=5 is not one of"),
-    ({"env_kwargs": {"max_episode_steps": 1.5}}, "env_kwargs.max_episode_steps=1.5 is not an integer"),
-    ({"env_kwargs": {"max_episode_steps": True}}, "env_kwargs.max_episode_steps=True is not an integer"),
+    ({"env_kwargs": {"near_path_fraction": "x"}}, "env_kwargs: invalid env settings: near_path_fraction must be a "
+                                                  "number in [0, 1] (or None), got 'x'"),
+    ({"env_kwargs": {"near_path_fraction": 7}}, "near_path_fraction must be a number in [0, 1] (or None), got 7"),
+    ({"env_kwargs": {"action_curve": [1, 2]}}, "action_curve must be a number from 1 (linear) to 4, got [1, 2]"),
+    ({"env_kwargs": {"clear_route": "no"}}, "clear_route must be true or false, got 'no'"),
+    ({"env_kwargs": {"object_size": 1}}, "object_size must be true or false, got 1"),
+    ({"env_kwargs": {"layout": 5}}, "layout must be one of 'route', 'narrow', 'gate', 'exit', got 5"),
+    ({"env_kwargs": {"max_episode_steps": 1.5}}, "max_episode_steps must be an integer from 1 to 100000, got 1.5"),
+    ({"env_kwargs": {"max_episode_steps": True}}, "max_episode_steps must be an integer from 1 to 100000, got True"),
+    ({"env_kwargs": {"factory": "os:system"}}, "env_kwargs: unknown setting(s) ['factory']"),
+    ({"train_config": {"k": 1, "layout": "exit"}}, "train_config: layout at the top level of a training config: that "
+                                                   "is the format written before 2026-12-08"),
     ({"k": True}, "k=True is not a slot count"),
     ({"hidden": ["8"]}, "hidden=['8'] is not a list of layer widths"),
     ({"network": "transformer"}, "network='transformer' is not 'mlp' or 'set'"),
@@ -145,7 +149,7 @@ def test_eval_refuses_policy_metadata_of_the_wrong_types(capsys, tmp_path, chang
     meta = json.loads(json.dumps(GOOD_META))
     for key, value in change.items():
         if isinstance(value, dict):
-            meta[key].update(value)
+            meta.setdefault(key, {}).update(value)
         else:
             meta[key] = value
     path = policy_file(tmp_path / "p.safetensors", meta=meta)
@@ -282,7 +286,7 @@ def fake_run(tmp_path: Path, **config) -> Path:
     run_dir.mkdir()
     cfg = TrainConfig(**{"k": 1, "hidden": (16, 16), "batch_size": 8, "buffer_size": 200, "learning_starts": 8,
                          "random_steps": 8, "out_dir": str(run_dir), "precision": "fp32", "device": "cpu", **config})
-    obs_dim = observation_dim(cfg.k, cfg.object_size)
+    obs_dim = observation_dim(cfg.k, cfg.env.object_size)
     learner = Learner(obs_dim, 3, cfg)
     buffer = ReplayBuffer(cfg.buffer_size, obs_dim, 3)
     rng = np.random.default_rng(0)
@@ -300,7 +304,7 @@ def fake_run(tmp_path: Path, **config) -> Path:
 
 def _edit_config(run_dir: Path, **change) -> None:
     cfg = json.loads((run_dir / "config.json").read_text())
-    cfg.update(change)
+    cfg.update({**change, "env": {**cfg["env"], **change.get("env", {})}})
     (run_dir / "config.json").write_text(json.dumps(cfg))
 
 
@@ -308,12 +312,12 @@ def _edit_config(run_dir: Path, **change) -> None:
     ({"k": 2}, "k is 2 in config.json but 1 in the checkpoint"),
     ({"network": "set"}, "network is 'set' in config.json but 'mlp' in the checkpoint"),
     ({"hidden": [32, 32]}, "hidden is [32, 32] in config.json but [16, 16] in the checkpoint"),
-    ({"embodiment": "hand"}, "embodiment is 'hand' in config.json but 'panda' in the checkpoint"),
+    ({"env": {"embodiment": "hand"}}, "env.embodiment is 'hand' in config.json but 'panda' in the checkpoint"),
     ({"algorithm": "vanilla"}, "algorithm is 'vanilla' in config.json but 'rarl' in the checkpoint"),
-    ({"layout": "narrow"}, "layout is 'narrow' in config.json but 'route' in the checkpoint"),
-    ({"constraints": "all"}, "constraints is 'all' in config.json but 'conservative' in the checkpoint"),
-    ({"object_size": True}, "object_size is True in config.json but False in the checkpoint"),
-    ({"action_curve": 3.0}, "action_curve is 3.0 in config.json but 2.0 in the checkpoint"),
+    ({"env": {"layout": "narrow"}}, "env.layout is 'narrow' in config.json but 'route' in the checkpoint"),
+    ({"env": {"constraints": "random"}}, "env.constraints is 'random' in config.json but 'conservative' in the checkpoint"),
+    ({"env": {"object_size": True}}, "env.object_size is True in config.json but False in the checkpoint"),
+    ({"env": {"action_curve": 3.0}}, "env.action_curve is 3.0 in config.json but 2.0 in the checkpoint"),
 ])
 def test_resume_refuses_a_run_whose_config_was_edited(capsys, tmp_path, change, message):
     run_dir = fake_run(tmp_path)
@@ -444,4 +448,13 @@ def test_semantic_examples_versions_and_file_names_still_work(capsys):
 def test_policy_format_tag_is_still_checked(capsys, tmp_path):
     path = policy_file(tmp_path / "p.safetensors", fmt="x/1")
     assert_refused(capsys, ["eval", "--policy", path, "--episodes", "1", "--workers", "1"], "not a safemanip policy")
-    assert POLICY_FORMAT == "safemanip-policy/1"
+    assert POLICY_FORMAT == "safemanip-policy/2"
+
+
+def test_a_policy_of_the_retired_flat_format_is_refused_with_what_to_do(capsys, tmp_path):
+    """Format 1 (before 2026-12-08) kept the env's settings flat in the training config; retired in issue 43."""
+    path = policy_file(tmp_path / "old.safetensors", fmt="safemanip-policy/1")
+    assert_refused(capsys, ["eval", "--policy", path, "--episodes", "1", "--workers", "1"],
+                   "is a policy of the retired format 'safemanip-policy/1' (written before 2026-12-08, with the env's "
+                   "settings flat in its training config; retired in issue 43); this version reads "
+                   "'safemanip-policy/2' only. Re-train it")

@@ -31,10 +31,10 @@ RECIPE = {**{k: v for k, v in TINY_TRAIN.items() if k != "k"}, "backend": "inlin
           "minutes": None, "eval_every_s": 86_400}
 """TINY_TRAIN without its k (a setting's), made deterministic: one process, fp32, no clock in the schedule, one
 evaluation."""
-SETTINGS = [{"name": "rarl-k1-conservative", "group": "a", "algorithm": "rarl", "k": 1, "constraints": "conservative",
-             "layout": "exit"},
+SETTINGS = [{"name": "rarl-k1-conservative", "group": "a", "algorithm": "rarl", "k": 1,
+             "env": {"constraints": "conservative", "layout": "exit"}},
             {"name": "rarl-k1-conservative-selaware", "group": "a", "algorithm": "rarl", "k": 1,
-             "constraints": "conservative", "layout": "exit", "scene_objects": 2, "selector": "dynamic-knn"}]
+             "env": {"constraints": "conservative", "layout": "exit"}, "scene_objects": 2, "selector": "dynamic-knn"}]
 TINY = {"description": "two tiny runs for the tests", "budget_env_steps": 1200, "recipe": RECIPE, "seeds": [0],
         "selection": {"block": 30, "episodes": 2}, "reporting": {"fig4": 31}, "settings": SETTINGS}
 RUNS = ("rarl-k1-conservative-s0", "rarl-k1-conservative-selaware-s0")
@@ -92,7 +92,9 @@ def test_the_recipe_and_budget_are_written_nowhere_else():
     ({"recipe": {**RECIPE, "address": "10.0.0.5:6379"}}, "'address' may not be given in a file"),
     ({"recipe": {**RECIPE, "gama": 0.9}}, "unknown training setting 'gama'"),
     ({"recipe": {**RECIPE, "gamma": 2.0}}, "gamma must be in (0, 1)"),
-    ({"recipe": {**RECIPE, "layout": "exit"}}, "layout also in the recipe; set each once"),
+    ({"recipe": {**RECIPE, "env": {"layout": "exit"}}}, "env.layout also in the recipe; set each once"),
+    ({"recipe": {**RECIPE, "layout": "exit"}}, "unknown training setting 'layout'"),
+    ({"recipe": {**RECIPE, "env": "exit"}}, "'env' must be an object of env settings"),
     ({"settings": [{**SETTINGS[0], "k": 2}]}, "its keys make it 'rarl-k2-conservative'; name it so"),
     ({"settings": [SETTINGS[0], SETTINGS[0]]}, "the name is given twice"),
     ({"settings": [{"algorithm": "rarl"}]}, "settings[0] must be an object with a 'name', a 'group'"),

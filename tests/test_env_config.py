@@ -2,7 +2,15 @@
 
 from __future__ import annotations
 
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
 import pytest
+from conftest import ROOT, SAFEMANIP, SUBPROCESS_ENV, TINY_TRAIN, assert_refused
+from safetensors import safe_open
 
 from safemanip.env.config import EnvConfig, EnvConfigError
 from safemanip.env.slide_out import SlideOutEnv
@@ -45,3 +53,63 @@ def test_bad_settings_are_refused_by_name(kwargs, message):
 
 def test_settings_left_unset_are_not_recorded():
     assert "gate_share" not in EnvConfig().kwargs() and EnvConfig(gate_share=1.0).kwargs()["gate_share"] == 1.0
+
+
+# ------------------------------------------------------------------------------------------ a new env option
+DUMMY_FIELD = '''    dummy_gain: float = 1.0
+    """A test's option: any positive number."""
+'''
+DUMMY_CHECK = '''        if not (is_real(self.dummy_gain) and self.dummy_gain > 0):
+            problems.append(f"dummy_gain must be a positive number, got {brief(self.dummy_gain)}")
+'''
+
+
+def _package_with_a_dummy_option(tmp_path: Path) -> dict:
+    """A copy of the package whose ``EnvConfig`` has one more setting, ``dummy_gain``, and its check: the whole change
+    an env option needs. Returns the environment that runs ``safemanip`` from the copy."""
+    src = tmp_path / "src"
+    shutil.copytree(ROOT / "src" / "safemanip", src / "safemanip", ignore=shutil.ignore_patterns("__pycache__"))
+    config = src / "safemanip" / "env" / "config.py"
+    text = config.read_text()
+    field_anchor = '    object_size: bool = False\n    """Each observation slot also carries the object\'s footprint radius."""\n'
+    check_anchor = "        if problems:\n            raise EnvConfigError("
+    assert text.count(field_anchor) == 1 and text.count(check_anchor) == 1, "EnvConfig changed: update this test"
+    config.write_text(text.replace(field_anchor, field_anchor + DUMMY_FIELD)
+                      .replace(check_anchor, DUMMY_CHECK + check_anchor))
+    return {**SUBPROCESS_ENV, "PYTHONPATH": os.pathsep.join([str(src), SUBPROCESS_ENV["PYTHONPATH"]])}
+
+
+def test_a_new_env_option_is_one_change_to_env_config_from_flag_to_evaluation(capsys, tmp_path):
+    """Issue 43's check: an option added to ``EnvConfig`` alone is a ``safemanip train`` flag, a training-config
+    setting, part of the policy's metadata and of the env its evaluation builds, with no other file touched."""
+    env = _package_with_a_dummy_option(tmp_path)
+
+    def safemanip(*args):
+        return subprocess.run([*SAFEMANIP, *map(str, args)], capture_output=True, text=True, timeout=600,
+                              cwd=tmp_path, env=env)
+
+    assert "--dummy-gain DUMMY_GAIN" in safemanip("train", "--help").stdout
+    cfg = tmp_path / "tiny.json"
+    cfg.write_text(json.dumps({**TINY_TRAIN, "backend": "inline", "precision": "fp32", "minutes": None}))
+    refused = safemanip("train", "--config", cfg, "--dummy-gain", "-1", "--out", tmp_path / "bad", "--no-progress")
+    assert refused.returncode == 2 and "dummy_gain must be a positive number, got -1.0" in refused.stderr
+    assert not (tmp_path / "bad").exists()  # refused before any work
+
+    run = tmp_path / "run"
+    done = safemanip("train", "--config", cfg, "--dummy-gain", "0.5", "--max-episode-steps", "30",
+                     "--total-env-steps", "600", "--out", run, "--no-progress")
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert json.loads((run / "config.json").read_text())["env"]["dummy_gain"] == 0.5  # the training config
+    with safe_open(str(run / "policy.safetensors"), "numpy") as f:
+        meta = json.loads(f.metadata()["meta"])
+    assert meta["env_kwargs"]["dummy_gain"] == 0.5 and meta["train_config"]["env"]["dummy_gain"] == 0.5
+
+    evaluated = safemanip("eval", "--policy", run / "policy.safetensors", "--episodes", "2", "--workers", "1",
+                          "--out", tmp_path / "eval")
+    assert evaluated.returncode == 0, evaluated.stderr[-2000:]
+    summary = json.loads((tmp_path / "eval" / "summary.json").read_text())
+    assert summary["eval"]["env_kwargs"]["dummy_gain"] == 0.5  # the env the evaluation built
+
+    # and this package, which has no such option, refuses the policy rather than dropping the setting
+    assert_refused(capsys, ["eval", "--policy", run / "policy.safetensors", "--episodes", "1", "--workers", "1"],
+                   "unknown setting(s) ['dummy_gain']")

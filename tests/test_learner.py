@@ -481,7 +481,7 @@ def test_init_from_takes_a_runs_networks_and_refuses_one_that_does_not_fit(tmp_p
     from safemanip.util.files import atomic_write_text
 
     torch.manual_seed(12)
-    source_cfg = TrainConfig(**SMALL, k=2, object_size=True, out_dir=str(tmp_path / "source"))
+    source_cfg = TrainConfig(**SMALL, k=2, env={"object_size": True}, out_dir=str(tmp_path / "source"))
     source = Learner(observation_dim(2, True), ACT, source_cfg)
     b = batch(16, observation_dim(2, True))
     source.update(b, 0.99)
@@ -490,7 +490,7 @@ def test_init_from_takes_a_runs_networks_and_refuses_one_that_does_not_fit(tmp_p
     write_checkpoint(tmp_path / "source", source.state_tensors(), ReplayBuffer(10, observation_dim(2, True), ACT),
                      {"updates": 1, "env_steps": 16, "elapsed_s": 3.0})
 
-    cfg = TrainConfig(**SMALL, k=2, object_size=True, scene_objects=4, learning_rate=3e-4,
+    cfg = TrainConfig(**SMALL, k=2, env={"object_size": True}, scene_objects=4, learning_rate=3e-4,
                       init_from=str(tmp_path / "source"))
     networks, provenance = warm_start(cfg)
     assert provenance == {"run": str(tmp_path / "source"), "env_steps": 16, "updates": 1, "elapsed_s": 3.0}
@@ -502,8 +502,8 @@ def test_init_from_takes_a_runs_networks_and_refuses_one_that_does_not_fit(tmp_p
     learner.update(b, 0.99)  # and it trains on
 
     with pytest.raises(ConfigError, match="k is 2 there but 3 here"):
-        warm_start(TrainConfig(**SMALL, k=3, object_size=True, init_from=str(tmp_path / "source")))
+        warm_start(TrainConfig(**SMALL, k=3, env={"object_size": True}, init_from=str(tmp_path / "source")))
     with pytest.raises(ConfigError, match="network is 'mlp' there but 'set' here"):
-        warm_start(TrainConfig(**SMALL, k=2, object_size=True, network="set", init_from=str(tmp_path / "source")))
+        warm_start(TrainConfig(**SMALL, k=2, env={"object_size": True}, network="set", init_from=str(tmp_path / "source")))
     with pytest.raises(ConfigError, match="no complete checkpoint"):
         warm_start(TrainConfig(**SMALL, init_from=str(tmp_path / "nowhere")))

@@ -28,9 +28,9 @@ def test_a_robot_is_one_registry_line(monkeypatch):
     obs, info = env.reset(seed=0)
     obs, *_ = env.step(np.array([0.5, 0.0, 0.0], dtype=np.float32))
     assert env.observation_space.contains(obs)
-    assert TrainConfig(embodiment="stubby").embodiment == "stubby"
+    assert TrainConfig(env={"embodiment": "stubby"}).env.embodiment == "stubby"
     args = build_parser().parse_args(["train", "--embodiment", "stubby", "--out", "x"])
-    assert args.embodiment == "stubby"
+    assert getattr(args, "env:embodiment") == "stubby"
     planner = GridPlanner()
     planner.reset(env)  # it asks the robot where the box can be held (here: anywhere)
     assert planner._space is not None
@@ -56,6 +56,6 @@ def test_a_layout_is_one_registry_line(monkeypatch):
     env = SlideOutEnv(n_objects=3, layout="wide-exit", constraints="conservative")
     _, info = env.reset(seed=0)
     assert info["scene_kind"] in ("exit", "open") and env.placement.route.layout is wide
-    assert TrainConfig(layout="wide-exit").env_kwargs["layout"] == "wide-exit"
+    assert TrainConfig(env={"layout": "wide-exit"}).env_kwargs["layout"] == "wide-exit"
     args = build_parser().parse_args(["eval", "--planner", "all", "--n-objects", "3", "--layout", "wide-exit"])
     assert args.layout == "wide-exit"

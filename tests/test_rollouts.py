@@ -17,7 +17,7 @@ from safemanip.rl.envs import env_builder, make_env
 from safemanip.selection.training_env import SelectedSlotsEnv
 
 ENV = {"n_objects": 2, "constraints": "conservative", "max_episode_steps": 40, "slot_order": "nearest"}
-CFG = dict(k=2, max_episode_steps=40, envs_per_collector=2, n_collectors=1, random_steps=10**6,
+CFG = dict(k=2, env={"max_episode_steps": 40}, envs_per_collector=2, n_collectors=1, random_steps=10**6,
            learning_starts=2 * CHUNK, batch_size=32, env_steps_per_update=4.0)
 
 
@@ -160,7 +160,7 @@ def test_selection_aware_env_shows_k_selected_slots_and_judges_all_objects():
     from safemanip.selection.selectors import DynamicKNN
     from safemanip.selection.view import EnvViewBuilder
 
-    cfg = TrainConfig(k=2, scene_objects=5, max_episode_steps=30)
+    cfg = TrainConfig(k=2, scene_objects=5, env={"max_episode_steps": 30})
     env = training_env(cfg)
     obs, info = env.reset(seed=11)
     assert obs.shape == (observation_dim(2),) and len(info["names"]) == 5
@@ -198,7 +198,7 @@ def test_dynamic_radius_training_env_leaves_absent_slots_empty():
 def test_mixed_clutter_draws_each_scene_size_pads_flat_slots_with_dummies_and_is_reproducible():
     from safemanip.selection.reducer import DUMMY_POSITIONS
 
-    cfg = TrainConfig(k=4, scene_objects_min=2, max_episode_steps=30)
+    cfg = TrainConfig(k=4, scene_objects_min=2, env={"max_episode_steps": 30})
     env, again = training_env(cfg), training_env(cfg)
     sizes = []
     for episode in range(24):
@@ -230,7 +230,7 @@ def test_mixed_clutter_draws_each_scene_size_pads_flat_slots_with_dummies_and_is
 def test_mixed_selectors_draw_knn_or_radius_per_episode_reproducibly_for_set_networks_only():
     """``selector='mixed'``: each episode's selector is drawn from the env's seeded generator; a dynamic-radius
     episode leaves the slots of objects beyond the radius absent (zero), a dynamic-kNN one fills all k."""
-    cfg = TrainConfig(k=4, scene_objects=6, selector="mixed", network="set", max_episode_steps=30)
+    cfg = TrainConfig(k=4, scene_objects=6, selector="mixed", network="set", env={"max_episode_steps": 30})
     env, again = training_env(cfg), training_env(cfg)
     drawn, filled = [], {"dynamic-knn": set(), "dynamic-radius": set()}
     for episode in range(16):
@@ -259,9 +259,9 @@ def test_config_rejects_mixed_clutter_outside_one_to_the_largest_scene():
 
 
 def test_object_size_reaches_the_env_and_the_selection_aware_reducer():
-    plain, sized = TrainConfig(k=2), TrainConfig(k=2, object_size=True)
+    plain, sized = TrainConfig(k=2), TrainConfig(k=2, env={"object_size": True})
     assert plain.env_kwargs["object_size"] is False and sized.env_kwargs["object_size"] is True
-    for cfg in (sized, TrainConfig(k=2, scene_objects=4, object_size=True)):
+    for cfg in (sized, TrainConfig(k=2, scene_objects=4, env={"object_size": True})):
         env = training_env(cfg)
         obs, _ = env.reset(seed=1)
         assert obs.shape == (observation_dim(2, object_size=True),) == env.observation_space.shape
@@ -285,10 +285,10 @@ def test_train_runs_a_set_network_with_selection_aware_dynamic_k_and_records_it(
     from safemanip.rl.numpy_actor import NumpySetActor
     from safemanip.rl.train import train
 
-    cfg = TrainConfig(k=3, scene_objects=5, network="set", selector="dynamic-radius", set_embed=16, object_size=True,
+    cfg = TrainConfig(k=3, scene_objects=5, network="set", selector="dynamic-radius", set_embed=16, env={"object_size": True, "max_episode_steps": 40},
                       hidden=(32, 32), batch_size=32, buffer_size=5000, learning_starts=256, random_steps=256,
                       eval_episodes=2, eval_every_s=60, checkpoint_every_s=60, log_every_s=60, envs_per_collector=2,
-                      env_steps_per_update=4.0, max_episode_steps=40, minutes=0.12, out_dir=str(tmp_path / "run"))
+                      env_steps_per_update=4.0, minutes=0.12, out_dir=str(tmp_path / "run"))
     run = train(cfg, progress=False, env_factory=SelectedSlotsEnv)
     summary = json.loads((run / "summary.json").read_text())
     assert summary["updates"] > 0 and summary["learner"]["dtype"] in ("fp32", "bf16") and summary["learner"]["reason"]
@@ -312,7 +312,7 @@ def test_the_selection_aware_env_comes_from_the_closed_registry_only():
         envs.env_builder(TrainConfig(k=2, scene_objects=3).rollout_env_kwargs)
     for name in (envs.SELECTED_ENV, "safemanip.selection.training_env:SelectedSlotsEnv"):
         with pytest.raises(ConfigError, match="registered envs"):
-            TrainConfig.from_dict({"env": name})
+            TrainConfig.from_dict({"env_name": name})
     for factory in (None, SelectedSlotsEnv):
         with pytest.raises(ValueError, match="unknown env"):
             envs.make_env({"env": "selection:SelectedSlotsEnv"}, factory)
@@ -324,7 +324,7 @@ def test_evaluation_workers_build_the_selection_aware_env_resolved_in_the_parent
     from safemanip.rl.networks import Actor, actor_arrays
     from safemanip.rl.rollout import evaluate_actor
 
-    cfg = TrainConfig(k=2, scene_objects=4, max_episode_steps=10)
+    cfg = TrainConfig(k=2, scene_objects=4, env={"max_episode_steps": 10})
     arrays = actor_arrays(Actor(observation_dim(2), 3, (16, 16)))
     seeds = [5, 6]
     build = env_builder(cfg.rollout_env_kwargs, SelectedSlotsEnv)
@@ -343,7 +343,7 @@ def test_train_from_python_takes_the_selection_aware_env_as_its_factory(tmp_path
 
     cfg = TrainConfig(k=2, scene_objects=3, hidden=(32, 32), batch_size=32, buffer_size=5000, learning_starts=256,
                       random_steps=256, eval_episodes=2, eval_every_s=60, checkpoint_every_s=60, log_every_s=60,
-                      envs_per_collector=2, env_steps_per_update=4.0, max_episode_steps=40, total_env_steps=768,
+                      envs_per_collector=2, env_steps_per_update=4.0, env={"max_episode_steps": 40}, total_env_steps=768,
                       out_dir=str(tmp_path / "run"))
     run = train(cfg, progress=False, env_factory=SelectedSlotsEnv)
     summary = json.loads((run / "summary.json").read_text())

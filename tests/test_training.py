@@ -21,11 +21,11 @@ def test_bad_configs_fail_before_any_work(tmp_path):
         TrainConfig(gamma=1.5)
     with pytest.raises(ConfigError, match="unknown config key"):
         TrainConfig.from_dict({"learning_rat": 1e-3})
-    with pytest.raises(ConfigError, match="layout must be one of 'route', 'narrow', 'gate', 'exit', got 'tight'"):
-        TrainConfig(layout="tight")
+    with pytest.raises(ConfigError, match="layout must be one of route, narrow, gate, exit, got 'tight'"):
+        TrainConfig(env={"layout": "tight"})
     with pytest.raises(ConfigError, match="layout 'narrow' keeps a route clear"):
-        TrainConfig(layout="narrow", clear_route=False)
-    assert TrainConfig(layout="narrow").env_kwargs["layout"] == "narrow"
+        TrainConfig(env={"layout": "narrow", "clear_route": False})
+    assert TrainConfig(env={"layout": "narrow"}).env_kwargs["layout"] == "narrow"
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
     with pytest.raises(ConfigError, match="not valid JSON"):

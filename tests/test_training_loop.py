@@ -182,7 +182,7 @@ def test_a_checkpoint_of_the_single_file_format_is_read_and_the_next_one_writes_
 
 
 # ------------------------------------------------------------------------------------------ resume, in-process
-TINY = {"k": 1, "hidden": (16, 16), "batch_size": 8, "learning_starts": 8, "random_steps": 8, "max_episode_steps": 20,
+TINY = {"k": 1, "hidden": (16, 16), "batch_size": 8, "learning_starts": 8, "random_steps": 8, "env": {"max_episode_steps": 20},
         "eval_episodes": 2, "device": "cpu", "precision": "fp32", "backend": "inline", "minutes": None}
 
 
@@ -375,7 +375,7 @@ def test_resume_after_kill_9_loses_at_most_one_checkpoint_interval_and_rebuilds_
     base = {"k": 1, "hidden": [32, 32], "batch_size": 32, "buffer_size": 6000, "learning_starts": 300,
             "random_steps": 300, "eval_episodes": 1, "eval_every_s": 86400, "checkpoint_every_s": 1, "log_every_s": 1,
             "envs_per_collector": 2, "env_steps_per_update": 2.0, "backend": "inline", "precision": "fp32",
-            "minutes": None, "max_episode_steps": 50, "seed": 11}
+            "minutes": None, "env": {"max_episode_steps": 50}, "seed": 11}
     (tmp_path / "ref.json").write_text(json.dumps({**base, "total_env_steps": 3000}))
     (tmp_path / "killed.json").write_text(json.dumps({**base, "total_env_steps": 10**7}))
     ref, killed = tmp_path / "ref", tmp_path / "killed"

@@ -99,7 +99,8 @@ class Benchmark:
         """The run's training config: the recipe, its setting's keys, its seed, the budget and its folder."""
         from safemanip.rl.config import TrainConfig
 
-        return TrainConfig.from_dict({**self.recipe, **run.setting.config, "seed": run.seed,
+        env = {**self.recipe.get("env", {}), **run.setting.config.get("env", {})}  # the env's keys, from either
+        return TrainConfig.from_dict({**self.recipe, **run.setting.config, "env": env, "seed": run.seed,
                                       "total_env_steps": self.budget_env_steps, "out_dir": str(run_dir)})
 
 
@@ -175,6 +176,9 @@ def _key_problems(keys: dict) -> list[str]:
         elif key not in known:
             problems.append(f"unknown training setting {key!r}; the training settings are those of "
                             f"safemanip train --config ({', '.join(sorted(known - set(SET_PER_RUN)))})")
+        elif key == "env" and not isinstance(keys[key], dict):
+            problems.append(f"'env' must be an object of env settings (e.g. {{\"layout\": \"exit\"}}), got "
+                            f"{reprlib.repr(keys[key])}")
     return problems
 
 
@@ -238,7 +242,9 @@ def _settings(settings, recipe: dict, problems: list[str]) -> list[Setting]:
         seen.add(name)
         config = {k: v for k, v in entry.items() if k not in SETTING_KEYS}
         problems += [f"{where}: {p}" for p in _key_problems(config)]
-        twice = sorted(set(config) & set(recipe))
+        twice = sorted(set(config) & set(recipe) - {"env"})
+        if isinstance(config.get("env"), dict) and isinstance(recipe.get("env"), dict):
+            twice += [f"env.{key}" for key in sorted(set(config["env"]) & set(recipe["env"]))]
         if twice:
             problems.append(f"{where}: {', '.join(twice)} also in the recipe; set each once, in the recipe or in "
                             f"the settings")
@@ -258,7 +264,7 @@ def _config_problems(bench: Benchmark, setting: Setting) -> list[str]:
     except ConfigError as err:
         return [f"settings ({setting.name}): {str(err).replace(chr(10) + '  - ', ' ').strip()}"]
     named = POLICY_NAME.fullmatch(run.name)
-    wanted = f"{cfg.algorithm}-k{cfg.k}-{cfg.constraints}{'-selaware' if cfg.selection_aware else ''}"
+    wanted = f"{cfg.algorithm}-k{cfg.k}-{cfg.constraint_set}{'-selaware' if cfg.selection_aware else ''}"
     if named is None or setting.name != wanted:
         return [f"settings ({setting.name}): its keys make it {wanted!r}; name it so (policy files are named "
                 f"ALGORITHM-kK-CONSTRAINTS[-selaware]-sSEED, and a sweep refuses a policy its name contradicts)"]

@@ -92,6 +92,36 @@ def add_config_flags(parser: argparse.ArgumentParser, cls: type, flags: dict[str
         parser.add_argument(flag, dest=name, type=typ, choices=allowed, default=None, help=help_)
 
 
+def add_env_flags(parser: argparse.ArgumentParser, cls: type, skip: tuple[str, ...], choices: dict,
+                  prefix: str = "env:") -> dict[str, str]:
+    """One option per field of the env config ``cls`` (``env.config.EnvConfig``) but ``skip``, generated from the
+    field alone, so that a new env setting is on the command line the moment it is in the config: ``--layout``
+    for ``layout``, a bool as ``--object-size`` / ``--no-object-size``, choices from ``choices``, help from the
+    docstring. Fields holding lists (names, classes) are set through a config file. The config checks ranges itself.
+    Returns {flag: field}; each value lands in ``args`` under ``prefix + field`` (None: not given)."""
+    from dataclasses import fields
+
+    from safemanip.util.docs import field_docs, first_sentence
+
+    docs = field_docs(cls)
+    flags = {}
+    for f in fields(cls):
+        kind = f.type.replace(" | None", "").strip()
+        if f.name in skip or kind.startswith("tuple"):
+            continue
+        flag, dest = "--" + f.name.replace("_", "-"), prefix + f.name
+        help_ = first_sentence(docs.get(f.name, "")).replace("%", "%%")
+        if kind == "bool":
+            parser.add_argument(flag, dest=dest, action=argparse.BooleanOptionalAction, default=None, help=help_)
+        else:
+            typ = {"int": int_in(-2**63, 2**63 - 1), "float": float_in(-math.inf, math.inf)}.get(kind)
+            allowed = sorted(choices[f.name]) if f.name in choices else None
+            parser.add_argument(flag, dest=dest, type=typ, choices=allowed, default=None, help=help_,
+                                metavar=None if allowed else f.name.upper())
+        flags[flag] = f.name
+    return flags
+
+
 SEED = int_in(0, 2**31 - 1)
 """Every command's --seed: a non-negative integer numpy and MuJoCo accept."""
 

@@ -9,24 +9,27 @@ import signal
 import sys
 from pathlib import Path
 
-from safemanip.cli.common import CliError, add_config_flags
+from safemanip.cli.common import CliError, add_config_flags, add_env_flags
 
 FLAGS = {
-    "--algorithm": "algorithm", "--k": "k", "--constraints": "constraints", "--embodiment": "embodiment",
-    "--action-curve": "action_curve", "--object-size": "object_size", "--layout": "layout",
+    "--algorithm": "algorithm", "--k": "k",
     "--total-env-steps": "total_env_steps", "--minutes": "minutes", "--seed": "seed", "--out": "out_dir",
     "--init-from": "init_from", "--gamma": "gamma", "--gamma-start": "gamma_start",
     "--learning-rate-final": "learning_rate_final", "--noise-color": "noise_color",
     "--actor-preactivation-penalty": "actor_preactivation_penalty", "--env-steps-per-update": "env_steps_per_update",
     "--eval-every-s": "eval_every_s", "--eval-episodes": "eval_episodes", "--checkpoint-every-s": "checkpoint_every_s",
-    "--max-episode-steps": "max_episode_steps",
     # learner speed, network, selection-aware training and rollout backend
     "--device": "device", "--precision": "precision", "--network": "network", "--scene-objects": "scene_objects",
     "--scene-objects-min": "scene_objects_min", "--selector": "selector", "--selection-radius": "selection_radius",
     "--backend": "backend", "--address": "address", "--workers": "n_collectors",
 }
 """The ``TrainConfig`` fields with a flag; every other field is set through ``--config``. The flags' types, ranges,
-choices and help come from the config itself (``cli.common.add_config_flags``)."""
+choices and help come from the config itself (``cli.common.add_config_flags``). The env's settings have a flag each,
+generated from ``EnvConfig`` (``ENV_FLAGS``)."""
+ENV_FLAGS: dict[str, str] = {}
+"""{flag: EnvConfig field} of the training env's flags, filled when the parser is built (``add_env_flags``): every
+env setting but n_objects (k's) and the lists (names, classes: through --config)."""
+ENV_DEST = "env:"
 EXTRA_HELP = {"address": "Default: RAY_ADDRESS, else a local Ray instance; never read from a config file."}
 
 
@@ -36,6 +39,8 @@ def _cmd_train(args) -> int:
     from safemanip.util.files import check_output_dir
 
     given = {field: getattr(args, field) for field in FLAGS.values() if getattr(args, field) is not None}
+    given_env = {field: getattr(args, ENV_DEST + field) for field in ENV_FLAGS.values()
+                 if getattr(args, ENV_DEST + field) is not None}
     if given.get("minutes") == 0:
         given["minutes"] = None  # documented: 0 means no time limit
     if args.resume:
@@ -54,6 +59,9 @@ def _cmd_train(args) -> int:
         address = given.pop("address", None)  # where the workers run, not a setting of the run: allowed
         conflicts = [f"{flag} {getattr(args, field)} (the run has {getattr(cfg, field)!r})"
                      for flag, field in FLAGS.items() if field in given and given[field] != getattr(cfg, field)]
+        conflicts += [f"{flag} {given_env[field]} (the run has {getattr(cfg.env, field)!r})"
+                      for flag, field in ENV_FLAGS.items() if field in given_env
+                      and given_env[field] != getattr(cfg.env, field)]
         if conflicts:
             raise CliError(f"--resume continues {run_dir} with its own settings; these flags differ from them: "
                            f"{'; '.join(conflicts)}. Drop them, or start a new run with --out")
@@ -61,8 +69,9 @@ def _cmd_train(args) -> int:
             cfg = TrainConfig.from_dict({**cfg.__dict__, "address": address})
     else:
         run_dir = None
-        base = TrainConfig.from_file(args.config).__dict__ if args.config else {}
-        cfg = TrainConfig.from_dict({**base, **given})  # validated here, before any work starts
+        base = TrainConfig.from_file(args.config) if args.config else TrainConfig()
+        env = {**base.env.kwargs(), **given_env}
+        cfg = TrainConfig.from_dict({**base.__dict__, **given, "env": env})  # validated here, before any work starts
         problems = check_output_dir(cfg.out_dir)
         if problems:
             raise CliError(problems[0])
@@ -91,7 +100,8 @@ def _cmd_train(args) -> int:
 
 
 def register(sub) -> None:
-    from safemanip.rl.config import FIELD_BOUNDS, FIELD_CHOICES, Bounds, TrainConfig
+    from safemanip.env.config import ENV_CHOICES, EnvConfig
+    from safemanip.rl.config import FIELD_BOUNDS, FIELD_CHOICES, TRAINING_CONSTRAINTS, Bounds, TrainConfig
 
     tr = sub.add_parser("train", help="train a reach-avoid (rarl) or vanilla DDPG policy")
     tr.add_argument("--config", help="JSON file of training settings (flags override it)")
@@ -99,5 +109,8 @@ def register(sub) -> None:
                                                         "writing into RUN_DIR")
     bounds = {**FIELD_BOUNDS, "minutes": Bounds(0, FIELD_BOUNDS["minutes"].hi)}  # 0 on the command line: no limit
     add_config_flags(tr, TrainConfig, FLAGS, bounds, FIELD_CHOICES, EXTRA_HELP)
+    env = tr.add_argument_group("the training env (env.config.EnvConfig; the defaults are rl.config.TRAINING_ENV's)")
+    ENV_FLAGS.update(add_env_flags(env, EnvConfig, skip=("n_objects",),
+                                   choices={**ENV_CHOICES, "constraints": tuple(TRAINING_CONSTRAINTS)}, prefix=ENV_DEST))
     tr.add_argument("--no-progress", action="store_true")
     tr.set_defaults(func=_cmd_train)

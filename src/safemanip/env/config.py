@@ -20,6 +20,10 @@ from safemanip.util.values import brief, is_int, is_real, is_strings
 
 CONSTRAINT_MODES = ("ground_truth", "conservative", "random")
 """How an episode's constraint types are chosen: from the catalog, all no_contact, or drawn at random."""
+SLOT_ORDERS = ("index", "nearest")
+ENV_CHOICES = {"constraints": CONSTRAINT_MODES, "layout": LAYOUTS, "embodiment": EMBODIMENTS, "slot_order": SLOT_ORDERS}
+"""The settings that name one of a closed set, and the set (the registries themselves for layouts and robots, so a
+registered one is taken at once): what ``EnvConfig`` checks and what the command line offers."""
 
 
 class EnvConfigError(ValueError):
@@ -31,32 +35,31 @@ class EnvConfig:
     n_objects: int = 4
     """Clutter objects in every scene (N), 0 to 8."""
     constraints: str | tuple[str, ...] = "ground_truth"
-    """How each episode's constraint types are chosen: 'ground_truth' (each object's catalog class), 'conservative'
-    (every object no_contact) or 'random' (drawn per object: training all constraint types); or one type per
-    object, the same every episode."""
+    """Each object's constraint type: 'conservative' (all no_contact), 'random' (drawn per object and episode) or
+    'ground_truth' (its catalog class). In Python also one type per object, the same every episode."""
     names: tuple[str, ...] | None = None
     """The scene's objects by catalog name, the same every episode (None: drawn per episode)."""
     classes: tuple[str, ...] | None = None
     """Semantic class of each object (names drawn from the catalog per episode); None: any class. From keywords,
     a description such as '2 fragile, 1 soft' also works."""
     near_path_fraction: float | None = None
-    """Share of the clutter beside the route (None: the layout's own)."""
+    """Share of the clutter placed beside the route, 0 to 1 (default: the layout's own)."""
     clear_route: bool = True
     """Keep a route to the goal clear (False: the superseded straight-corridor layout)."""
     layout: str = "route"
-    """Scene layout (``scene.placement.LAYOUTS``)."""
+    """Which scenes the episodes draw. (The registry is ``scene.placement.LAYOUTS``.)"""
     gate_share: float | None = None
-    """Share of gate scenes (None: the layout's)."""
+    """Share of gate scenes, 0 to 1 (default: the layout's)."""
     exit_share: float | None = None
-    """Share of exit scenes (None: the layout's)."""
+    """Share of exit scenes, 0 to 1 (default: the layout's)."""
     max_episode_steps: int = 300
     """Episode length in control steps."""
     slot_order: str = "index"
-    """Object slots of the env's own observation: scene order or nearest to the held box first."""
+    """Order of the observation's object slots: 'index' (the scene's order) or 'nearest' (to the held box first)."""
     embodiment: str = "panda"
-    """Robot (``scene.embodiment.EMBODIMENTS``)."""
+    """The robot: the Franka Panda arm, or the idealised floating hand. (``scene.embodiment.EMBODIMENTS``.)"""
     action_curve: float = 1.0
-    """Commanded speed = 1.7 m/s x |a|^action_curve."""
+    """Action to commanded speed: 1.7 m/s x |a|^action_curve, 1 (linear) to 4."""
     object_size: bool = False
     """Each observation slot also carries the object's footprint radius."""
 
@@ -80,7 +83,8 @@ class EnvConfig:
             problems.append(f"near_path_fraction must be a number in [0, 1] (or None), got {brief(self.near_path_fraction)}")
         if not isinstance(self.layout, str):  # which names: the scene config says
             problems.append(f"layout must be one of {', '.join(map(repr, LAYOUTS))}, got {brief(self.layout)}")
-        for name, allowed in (("embodiment", tuple(EMBODIMENTS)), ("slot_order", ("index", "nearest"))):
+        for name in ("embodiment", "slot_order"):
+            allowed = ENV_CHOICES[name]
             value = getattr(self, name)
             if not isinstance(value, str) or value not in allowed:
                 problems.append(f"{name} must be one of {', '.join(map(repr, allowed))}, got {brief(value)}")

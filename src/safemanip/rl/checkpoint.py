@@ -29,7 +29,12 @@ from safemanip.scene.embodiment import EMBODIMENTS
 from safemanip.util.files import JSONInputError, atomic_path, atomic_write_text, parse_json, read_json_file
 from safemanip.util.values import brief, is_int
 
-POLICY_FORMAT = "safemanip-policy/1"
+POLICY_FORMAT = "safemanip-policy/2"
+"""The policy file format: its training config (``train_config``) holds the env's settings under ``env``."""
+RETIRED_POLICY_FORMATS = {
+    "safemanip-policy/1": "written before 2026-12-08, with the env's settings flat in its training config",
+}
+"""Formats no longer read, and what they were: refused with what to do, never converted (issue 43)."""
 
 
 CHECKPOINT_NAMES = ("checkpoint.new", "checkpoint", "checkpoint.old")
@@ -336,6 +341,11 @@ def load_policy(path: str | Path):
                               f"{known_policies()} (the benchmark's policies are found in {BENCHMARK_POLICIES} of "
                               f"the repository, or in the folder {ENV_VAR} names)")
     header = check_safetensors(path).get("__metadata__") or {}
+    if header.get("format") in RETIRED_POLICY_FORMATS:
+        raise PolicyFileError(f"{path} is a policy of the retired format {header['format']!r} "
+                              f"({RETIRED_POLICY_FORMATS[header['format']]}; retired in issue 43); this version reads "
+                              f"{POLICY_FORMAT!r} only. Re-train it with safemanip train (a benchmark policy: re-train "
+                              f"its run and re-promote it with safemanip bench promote)")
     if header.get("format") != POLICY_FORMAT:
         raise PolicyFileError(f"{path} is not a safemanip policy (format {header.get('format')!r}, "
                               f"expected {POLICY_FORMAT!r})")
@@ -345,9 +355,6 @@ def load_policy(path: str | Path):
         raise PolicyFileError(f"{path}: the policy's metadata is not valid JSON ({err.reason})") from err
     if not isinstance(meta, dict):
         raise PolicyFileError(f"{path}: the policy's metadata must be a JSON object")
-    retired = retired_meta_format(meta)
-    if retired:
-        raise PolicyFileError(f"{path}: {retired}")
     problems = policy_meta_problems(meta)
     if problems:
         raise PolicyFileError(f"{path}: its metadata is not that of a policy this package wrote: {'; '.join(problems)}; "
@@ -384,22 +391,6 @@ def load_policy(path: str | Path):
     if wrong:
         raise PolicyFileError(f"{path}: the metadata does not match the weights: {', '.join(wrong)}")
     return NumpyActor(arrays), meta
-
-
-def retired_meta_format(meta: dict) -> str | None:
-    """Why a policy's metadata is in a retired format, and what to do, or None. Policies written before 2026-12-01
-    name their env by its Python class (``env_kwargs.factory``) and store their training config with the slot count
-    as ``n_objects`` or the env as ``env_factory``; that format was retired in issue 43 and is refused, not
-    converted."""
-    env_kwargs = meta.get("env_kwargs")
-    train = meta.get("train_config")
-    old = ([f"env_kwargs.{key}" for key in ("factory",) if isinstance(env_kwargs, dict) and key in env_kwargs]
-           + [f"train_config.{key}" for key in ("n_objects", "env_factory") if isinstance(train, dict) and key in train])
-    if not old:
-        return None
-    return (f"this policy file's metadata is the format written before 2026-12-01 ({', '.join(old)}), retired in "
-            f"issue 43 and no longer read; re-train the policy with safemanip train (a benchmark policy: re-train "
-            f"its run and re-promote it with safemanip bench promote)")
 
 
 def _checked_set_arrays(path: Path, tensors: dict[str, np.ndarray], meta: dict) -> dict[str, np.ndarray]:
@@ -479,8 +470,9 @@ def policy_object_size(meta: dict) -> bool:
 def policy_meta_problems(meta: dict) -> list[str]:
     """What is wrong with the types and ranges of a policy's metadata (keys that are absent are not checked here:
     the commands say which ones they need). Booleans must be JSON booleans, counts integers, numbers finite."""
+    from safemanip.env.config import EnvConfig, EnvConfigError
+    from safemanip.rl.config import ConfigError, TrainConfig
     from safemanip.scene.config import MAX_OBJECTS
-    from safemanip.scene.placement import LAYOUTS
 
     def is_str(v):
         return isinstance(v, str)
@@ -503,19 +495,19 @@ def policy_meta_problems(meta: dict) -> list[str]:
            "eval": (lambda v: v is None or isinstance(v, dict), "an object or null"),
            "train_config": (lambda v: isinstance(v, dict), "an object"),
            "train_command": (lambda v: v is None or is_str(v), "a string or null")}
-    env = {"env": (is_str, "a name"), "n_objects": (is_count(0, MAX_OBJECTS), f"an integer 0..{MAX_OBJECTS}"),
-           "constraints": (is_str, "a name"),
-           "near_path_fraction": (lambda v: v is None or is_in(0, 1)(v), "a number in [0, 1] or null"),
-           "clear_route": (lambda v: isinstance(v, bool), "true or false"),
-           "layout": (lambda v: v in LAYOUTS, f"one of {list(LAYOUTS)}"),
-           "max_episode_steps": (is_count(1, 100_000), "an integer 1..100000"),
-           "slot_order": (lambda v: v in ("nearest", "index"), "'nearest' or 'index'"),
-           "embodiment": (is_str, "a name"), "action_curve": (is_in(1, 4), "a number from 1 to 4"),
-           "object_size": (lambda v: isinstance(v, bool), "true or false")}
     problems = [f"{key}={brief(meta[key], 60)} is not {want}" for key, (ok, want) in top.items()
                 if key in meta and not ok(meta[key])]
     env_kwargs = meta.get("env_kwargs")
     if isinstance(env_kwargs, dict) and env_kwargs.get("env", "slide-out") == "slide-out":
-        problems += [f"env_kwargs.{key}={brief(env_kwargs[key], 60)} is not {want}" for key, (ok, want) in env.items()
-                     if key in env_kwargs and not ok(env_kwargs[key])]
+        try:  # the env's own checker, as for every other way in
+            EnvConfig.from_kwargs(env_kwargs, "env_kwargs")
+        except EnvConfigError as err:
+            problems.append(f"env_kwargs: {err}")
+    train = meta.get("train_config")
+    if isinstance(train, dict):
+        try:
+            TrainConfig.from_dict(train)
+        except ConfigError as err:
+            problems.append("train_config: " + str(err).replace("invalid training config:\n  - ", "")
+                            .replace("\n  - ", "; ").strip())
     return problems

@@ -4,18 +4,27 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
-from safemanip.env.config import EnvConfig
+from safemanip.env.config import EnvConfig, EnvConfigError
 from safemanip.rl.envs import DEFAULT_ENV, ENVS, SELECTED_ENV, check_env
 from safemanip.scene.config import MAX_OBJECTS
-from safemanip.scene.embodiment import EMBODIMENTS
-from safemanip.scene.placement import LAYOUTS
+from safemanip.util.values import brief
 
 
 class ConfigError(ValueError):
     """A training config that cannot run; the message says what to change."""
+
+
+TRAINING_ENV = EnvConfig(n_objects=2, constraints="conservative", slot_order="nearest", action_curve=2.0)
+"""The training env where it differs from the env's own defaults (``EnvConfig``): every object no_contact (the
+paper's F^conser), slots nearest first (the order the deployment reducer uses), and the action curve 2 (placing the
+box at rest asks for |a| < 0.17 instead of 0.03, so exploration noise and the actor's gradient can find it). A
+run changes it through ``TrainConfig.env``."""
+TRAINING_CONSTRAINTS = {"conservative": "conservative", "random": "all"}
+"""The constraint modes a policy is trained with (``EnvConfig.constraints``) and the constraint set each gives the
+policy's name and metadata: F^conser, or all types drawn at random per object and episode."""
 
 
 @dataclass
@@ -26,32 +35,12 @@ class TrainConfig:
     k: int = 2
     """Clutter objects in every training scene: the k object slots the policy sees (at evaluation a scene may
     hold N >= k objects: eval's --n-objects)."""
-    constraints: str = "conservative"
-    """'conservative': every object no_contact (paper F^conser); 'all': each object's constraint drawn
-    uniformly from {no_contact, soft_contact, any_contact} every episode."""
-    near_path_fraction: float | None = None
-    """Share of the clutter placed near the path to the goal (None: the layout's own, 0.5 for 'route')."""
-    clear_route: bool = True
-    """Scenes keep a route to the goal clear for the held box and hand, the near-path objects beside it
-    (``scene.placement.sample_route``). False: the superseded straight-corridor layout (docs/results-history.md),
-    in which the Panda cannot solve most scenes with N >= 3. Recorded in the policy's metadata."""
-    layout: str = "route"
-    """Which scenes the episodes draw: 'route' (open scenes), 'narrow' (a channel), 'gate' (half gate scenes) or
-    'exit' (half exit scenes). The registry is ``scene.placement.LAYOUTS``; recorded in the policy's metadata."""
-    embodiment: str = "panda"
-    """Robot: 'panda' (the 7-DoF Franka Panda, the paper's) or 'hand' (the idealised floating-hand ablation).
-    Recorded in the policy's metadata; a policy is refused in another embodiment."""
-    action_curve: float = 2.0
-    """Action -> commanded speed: max speed x |a|^curve along a. (``control.diff_ik.shape_action``.) With 2,
-    placing the box at rest (< 5 cm/s) asks for |a| < 0.17 instead of 0.03, so exploration noise and the actor's
-    gradient can find it; full speed is still |a| = 1. Recorded in the policy (policies without it: 1)."""
-    object_size: bool = False
-    """Each object slot also carries the object's footprint radius: the catalog's objects span 3-10 cm, and without
-    it the policy cannot tell how wide a berth an object needs. Not the paper's observation (``env/observation.py``);
-    recorded in the policy (policies without it: no size). Flat MLP only for now."""
-    slot_order: str = "nearest"
-    """Order of the object slots in the observation: 'nearest' (by distance to the held box, re-sorted every
-    step -- the order the deployment reducer uses) or 'index' (the scene's fixed object order)."""
+    env: EnvConfig | None = None
+    """The training scenes, as the env takes them (``env.config.EnvConfig``: layout, constraint mode, robot, action
+    curve, observation options, episode length); None: ``TRAINING_ENV``. A file gives the settings that differ from
+    ``TRAINING_ENV`` as an object under "env". Its n_objects is always k: the env the policy was trained in has k
+    objects (the larger scenes of selection-aware training are ``scene_objects``). Recorded in the policy's metadata
+    (``env_kwargs``), from which evaluation builds its env."""
     total_env_steps: int = 2_000_000
     """Budget in environment steps (the run stops at whichever budget is reached first)."""
     minutes: float | None = 60.0
@@ -81,10 +70,8 @@ class TrainConfig:
     """Target networks move by (1 - polyak) towards the trained ones every update (Table V)."""
     hidden: tuple[int, ...] = (256, 256, 256)
     """Hidden layer widths of the actor and critic MLPs (Table V: three layers of 256)."""
-    max_episode_steps: int = 300
-    """Episode length in control steps (Table V)."""
     # -- another env (e.g. the toy system, safemanip.toy)
-    env: str = DEFAULT_ENV
+    env_name: str = DEFAULT_ENV
     """A name in the closed env registry ``safemanip.rl.envs.ENVS`` ('slide-out' or
     'toy-double-integrator'); never an import path."""
     extra_env_kwargs: dict = field(default_factory=dict)
@@ -184,6 +171,7 @@ class TrainConfig:
         if problems:  # the range checks below assume the right types
             raise ConfigError("invalid training config:\n  - " + "\n  - ".join(problems))
         self.hidden = tuple(int(h) for h in self.hidden)
+        problems += self._env_problems()
         # every field's own range and choices, from the one table the command line uses too
         for name, allowed in FIELD_CHOICES.items():
             value = getattr(self, name)
@@ -195,9 +183,6 @@ class TrainConfig:
             if value is not None and not bounds.contains(value):
                 problems.append(f"{name} must be in {bounds}, got {value}")
         # rules across fields
-        if not self.clear_route and self.layout in LAYOUTS and self.layout != "route":
-            problems.append(f"layout {self.layout!r} keeps a route clear: drop clear_route false (the straight "
-                            f"layout) or the layout")
         if self.gamma_start is not None and self.gamma_start > self.gamma:
             problems.append(f"gamma_start must be in (0, gamma], got {self.gamma_start}")
         if self.learning_rate_final is not None and self.learning_rate_final > self.learning_rate:
@@ -211,14 +196,40 @@ class TrainConfig:
             problems.append(f"hidden must list 1..8 layer widths in 1..4096, got {list(self.hidden)}")
         if not isinstance(self.out_dir, str) or not self.out_dir.strip():
             problems.append("out_dir must be a folder path")
-        problems += check_env(self.env, self.extra_env_kwargs)
-        if self.env == DEFAULT_ENV and self.extra_env_kwargs:
+        problems += check_env(self.env_name, self.extra_env_kwargs)
+        if self.env_name == DEFAULT_ENV and self.extra_env_kwargs:
             problems.append("extra_env_kwargs apply to non-default envs only (the slide-out env takes its settings "
-                            "from k, constraints, near_path_fraction, clear_route, layout, max_episode_steps, slot_order, embodiment and "
-                            "action_curve, object_size)")
+                            "from env)")
         problems += self._learner_problems()
         if problems:
             raise ConfigError("invalid training config:\n  - " + "\n  - ".join(problems))
+
+    def _env_problems(self) -> list[str]:
+        """The training env, checked by ``EnvConfig`` itself (one checker for every way in); an object from a file
+        becomes an ``EnvConfig`` over ``TRAINING_ENV``'s values, and n_objects is k's."""
+        env = TRAINING_ENV if self.env is None else self.env
+        if isinstance(env, dict):
+            if "n_objects" in env and env["n_objects"] != self.k:
+                return [f"env.n_objects is k's ({self.k}), got {brief(env['n_objects'])}: set k for the policy's "
+                        f"slots, and scene_objects for larger training scenes"]
+            try:
+                env = EnvConfig.from_kwargs({**TRAINING_ENV.kwargs(), **env, "n_objects": self.k}, "env")
+            except EnvConfigError as err:
+                return [str(err)]
+        elif not isinstance(env, EnvConfig):
+            return [f"env must be an object of env settings (env.config.EnvConfig), got {brief(env)}"]
+        elif env is not TRAINING_ENV and env.n_objects != self.k:
+            return [f"env.n_objects is k's ({self.k}), got {env.n_objects}: set k for the policy's slots, and "
+                    f"scene_objects for larger training scenes"]
+        if isinstance(env.constraints, tuple) or env.constraints not in TRAINING_CONSTRAINTS:
+            return [f"env.constraints must be one of {', '.join(map(repr, TRAINING_CONSTRAINTS))} for training "
+                    f"('random': every type, the paper's policies trained on all constraint types), got "
+                    f"{brief(env.constraints)}"]
+        try:
+            self.env = replace(env, n_objects=self.k)
+        except EnvConfigError as err:
+            return [str(err)]
+        return []
 
     def _learner_problems(self) -> list[str]:
         """Checks across the learner fields (network, selection-aware training, backend)."""
@@ -227,16 +238,16 @@ class TrainConfig:
             if not self.k <= self.scene_objects <= MAX_OBJECTS:
                 problems.append(f"scene_objects must be in k..{MAX_OBJECTS} ({self.k}..{MAX_OBJECTS}), "
                                 f"got {self.scene_objects}")
-            if self.env != DEFAULT_ENV:
+            if self.env_name != DEFAULT_ENV:
                 problems.append(f"scene_objects (selection-aware training) works on the {DEFAULT_ENV!r} env, "
-                                f"not {self.env!r}")
+                                f"not {self.env_name!r}")
         if self.scene_objects_min is not None:
             most = self.scene_objects or self.k
             if not 1 <= self.scene_objects_min <= most:
                 problems.append(f"scene_objects_min must be in 1..{most} (the scene_objects, or k, it mixes up to), "
                                 f"got {self.scene_objects_min}")
-            if self.env != DEFAULT_ENV:
-                problems.append(f"scene_objects_min (mixed clutter) works on the {DEFAULT_ENV!r} env, not {self.env!r}")
+            if self.env_name != DEFAULT_ENV:
+                problems.append(f"scene_objects_min (mixed clutter) works on the {DEFAULT_ENV!r} env, not {self.env_name!r}")
         if self.selector in ("dynamic-radius", "mixed") and self.network != "set":
             problems.append(f"selector {self.selector!r} hands the policy a varying number of objects: use network 'set'")
         if self.init_from is not None and (not self.init_from.strip() or len(self.init_from) > 4096):
@@ -252,7 +263,7 @@ class TrainConfig:
     def selection_aware(self) -> bool:
         """Training scenes hold more objects than the policy's slots, a varying number of them (mixed clutter),
         or the slots vary (dynamic-radius, mixed)."""
-        return self.env == DEFAULT_ENV and (self.scene_objects is not None or self.scene_objects_min is not None
+        return self.env_name == DEFAULT_ENV and (self.scene_objects is not None or self.scene_objects_min is not None
                                             or self.selector in ("dynamic-radius", "mixed"))
 
     @property
@@ -271,13 +282,14 @@ class TrainConfig:
     @property
     def env_kwargs(self) -> dict:
         """The training env's settings (``env.config.EnvConfig``), recorded in the policy's metadata."""
-        if self.env != DEFAULT_ENV:
-            return {"env": self.env, **self.extra_env_kwargs}
-        return EnvConfig(n_objects=self.k, constraints="random" if self.constraints == "all" else "conservative",
-                         near_path_fraction=self.near_path_fraction, clear_route=self.clear_route, layout=self.layout,
-                         max_episode_steps=self.max_episode_steps, slot_order=self.slot_order,
-                         embodiment=self.embodiment, action_curve=self.action_curve,
-                         object_size=self.object_size).kwargs()
+        if self.env_name != DEFAULT_ENV:
+            return {"env": self.env_name, **self.extra_env_kwargs}
+        return self.env.kwargs()
+
+    @property
+    def constraint_set(self) -> str:
+        """The policy's constraint set as its name and metadata say it: 'conservative' (F^conser) or 'all'."""
+        return TRAINING_CONSTRAINTS[self.env.constraints]
 
     def learning_rate_at(self, progress: float) -> float:
         if self.learning_rate_final is None:
@@ -292,8 +304,12 @@ class TrainConfig:
         return self.gamma_start + frac * (self.gamma - self.gamma_start)
 
     def to_json(self) -> str:
-        """The config as written to config.json, checkpoints and policies: every field but the Ray address."""
-        return json.dumps({k: v for k, v in asdict(self).items() if k not in NOT_RECORDED}, indent=1)
+        """The config as written to config.json, checkpoints and policies: every field but the Ray address, the env
+        as its keyword arguments (``EnvConfig.kwargs``)."""
+        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in NOT_RECORDED}
+        out["env"] = {k: v for k, v in self.env.kwargs().items() if k != "n_objects"}  # k's
+        out["hidden"] = list(self.hidden)
+        return json.dumps(out, indent=1)
 
     @classmethod
     def from_dict(cls, data: dict) -> "TrainConfig":
@@ -347,7 +363,11 @@ def _read_config(path: str | Path):
         raise ConfigError(str(err)) from err
 
 
-RETIRED_KEYS = ("n_objects", "env_factory")
+FLAT_ENV_KEYS = ("constraints", "near_path_fraction", "clear_route", "layout", "embodiment", "action_curve",
+                 "object_size", "slot_order", "max_episode_steps")
+"""The env settings that the training-config format written before 2026-12-08 kept at the top level (and its ``env``,
+then the registry name, now ``env_name``): retired in issue 43 when the env's settings moved under ``env``."""
+RETIRED_KEYS = ("n_objects", "env_factory") + FLAT_ENV_KEYS
 """Keys of the training-config format written before 2026-12-01 (``n_objects`` for the slot count k, ``env_factory``
 for the env as a Python class): retired in issue 43, refused by ``TrainConfig.from_dict`` with what to do instead,
 never converted."""
@@ -356,6 +376,13 @@ never converted."""
 def retired_key_problems(data: dict) -> list[str]:
     """What to do about each retired key in a config (run folder, policy metadata or --config file)."""
     problems = []
+    flat = [key for key in FLAT_ENV_KEYS if key in data]
+    if flat or isinstance(data.get("env"), str):
+        problems.append(f"{', '.join(flat) or 'env as a name'} at the top level of a training config: that is the format written "
+                        f"before 2026-12-08, retired in issue 43. The env's settings go in an object under 'env' (e.g. "
+                        f"\"env\": {{\"layout\": \"gate\", \"constraints\": \"random\"}}; constraints 'all' is now "
+                        f"'random'), and a registry env's name under 'env_name'. A run folder in the old format: start a "
+                        f"new run (safemanip train ... --out NEW_FOLDER)")
     if "n_objects" in data:
         problems.append("key 'n_objects' is not a training setting: the policy's object slots are 'k' and a larger "
                         "training scene is 'scene_objects'. A run folder or policy that stores the slot count as "
@@ -364,7 +391,7 @@ def retired_key_problems(data: dict) -> list[str]:
     if "env_factory" in data:
         problems.append(f"env_factory {_brief(data['env_factory'])} is not accepted: naming an env by its Python "
                         f"class is the format of run folders written before 2026-12-01, retired in issue 43, and "
-                        f"nothing in a config is imported. Name the env with 'env', one of {sorted(ENVS)} (default "
+                        f"nothing in a config is imported. Name the env with 'env_name', one of {sorted(ENVS)} (default "
                         f"{DEFAULT_ENV!r}), and re-train a run folder that has the old key")
     return problems
 
@@ -403,12 +430,12 @@ class Bounds:
 
 
 FIELD_BOUNDS = {
-    "k": Bounds(0, MAX_OBJECTS), "near_path_fraction": Bounds(0, 1), "action_curve": Bounds(1, 4),
+    "k": Bounds(0, MAX_OBJECTS),
     "total_env_steps": Bounds(1, 10**12), "minutes": Bounds(0, 60 * 24 * 365, lo_open=True), "seed": Bounds(0, 2**32 - 1),
     "batch_size": Bounds(1, 65_536), "learning_rate": Bounds(0, 1, lo_open=True),
     "learning_rate_final": Bounds(0, 1, lo_open=True), "buffer_size": Bounds(1, 10**7),
     "gamma": Bounds(0, 1, lo_open=True, hi_open=True), "gamma_start": Bounds(0, 1, lo_open=True, hi_open=True),
-    "polyak": Bounds(0, 1, lo_open=True, hi_open=True), "max_episode_steps": Bounds(1, 100_000),
+    "polyak": Bounds(0, 1, lo_open=True, hi_open=True),
     "target_noise": Bounds(0, 10), "target_noise_clip": Bounds(0, 10), "policy_delay": Bounds(1, 1_000),
     "actor_preactivation_penalty": Bounds(0, 10), "exploration_noise": Bounds(0, 10), "noise_color": Bounds(0, 2),
     "random_steps": Bounds(0, 10**12), "learning_starts": Bounds(1, 10**9),
@@ -423,13 +450,12 @@ FIELD_BOUNDS = {
 builds its flags' argparse types from it. The upper bounds keep a typo from allocating terabytes or spawning hundreds
 of processes."""
 FIELD_CHOICES = {
-    "algorithm": ("rarl", "vanilla"), "constraints": ("conservative", "all"), "slot_order": ("nearest", "index"),
-    "embodiment": EMBODIMENTS, "layout": LAYOUTS, "device": ("auto", "cpu", "cuda"),
+    "algorithm": ("rarl", "vanilla"), "device": ("auto", "cpu", "cuda"),
     "precision": ("auto", "bf16", "fp32"), "network": ("mlp", "set"),
     "selector": ("dynamic-knn", "dynamic-radius", "mixed"), "backend": ("local", "ray", "inline"),
 }
-"""Every field that names one of a closed set, and the set (the registries themselves for robots and layouts, so a
-registered one is taken everywhere at once)."""
+"""Every field that names one of a closed set, and the set. (The env's fields, robots and layouts among them, are
+checked by ``EnvConfig`` against the registries themselves, so a registered one is taken everywhere at once.)"""
 
 _KINDS = {"int": (int,), "float": (int, float), "str": (str,), "bool": (bool,), "dict": (dict,)}
 
@@ -440,7 +466,7 @@ def _type_problems(cfg: "TrainConfig") -> list[str]:
     for f in fields(cfg):
         value = getattr(cfg, f.name)
         optional = "| None" in f.type
-        if value is None and optional:
+        if value is None and optional or f.name == "env":  # the env is checked by EnvConfig (_env_problems)
             continue
         kind = f.type.replace(" | None", "").strip()
         if kind.startswith("tuple"):

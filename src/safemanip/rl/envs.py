@@ -70,7 +70,7 @@ def env_choices() -> str:
 def check_env(name, extra_kwargs) -> list[str]:
     """Problems with an env name and its extra keyword arguments, as messages (empty: fine)."""
     if not isinstance(name, str) or name not in ENVS:
-        return [f"env must be one of the registered envs, {env_choices()}; got {name!r}"]
+        return [f"env_name must be one of the registered envs, {env_choices()}; got {name!r}"]
     if not isinstance(extra_kwargs, dict):
         return [f"extra_env_kwargs must be a JSON object, got {type(extra_kwargs).__name__}"]
     allowed = ENVS[name].extra_kwargs

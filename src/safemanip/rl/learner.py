@@ -44,7 +44,7 @@ class Learner:
         self.device = resolve_device(cfg.device)
         self.precision = precision or resolve_precision(cfg.precision, self.device)
         actor, critic = make_networks(cfg.network, obs_dim, act_dim, cfg.hidden, 2 if cfg.twin_critics else 1,
-                                      cfg.set_embed, cfg.object_size)
+                                      cfg.set_embed, cfg.env.object_size)
         self.actor, self.critic = actor.to(self.device), critic.to(self.device)
         self.actor_targ = copy.deepcopy(self.actor).requires_grad_(False)
         self.critic_targ = copy.deepcopy(self.critic).requires_grad_(False)

@@ -62,7 +62,7 @@ class ScalarLog:
 
 def policy_meta(cfg: TrainConfig, obs_dim: int, act_dim: int, eval_result: dict | None, env_steps: int, updates: int,
                 wall_s: float, command: str | None) -> dict:
-    return {"algorithm": cfg.algorithm, "k": cfg.k, "constraints": cfg.constraints, "obs_dim": obs_dim,
+    return {"algorithm": cfg.algorithm, "k": cfg.k, "constraints": cfg.constraint_set, "obs_dim": obs_dim,
             "act_dim": act_dim, "hidden": list(cfg.hidden), "env_kwargs": cfg.env_kwargs, "train_config": json.loads(cfg.to_json()),
             "env_steps": env_steps, "updates": updates, "wall_s": round(wall_s, 1), "eval": eval_result,
             "train_command": command}
@@ -151,8 +151,8 @@ def truncate_logs(run_dir: Path, env_steps: int, evals: int | None = None, best:
     return len(kept_lines)
 
 
-WARM_START_FIELDS = ("algorithm", "k", "network", "set_embed", "hidden", "twin_critics", "object_size", "embodiment",
-                     "action_curve")
+WARM_START_FIELDS = ("algorithm", "k", "network", "set_embed", "hidden", "twin_critics", "env.object_size",
+                     "env.embodiment", "env.action_curve")
 """What a run started from another run's networks must share with it: the networks' shapes and the meaning of
 their inputs and outputs. Scenes (scene_objects, selector), budgets and learning rates may differ."""
 NETWORK_PARTS = ("actor", "critic", "actor_targ", "critic_targ")
@@ -169,8 +169,9 @@ def warm_start(cfg: TrainConfig) -> tuple[dict, dict] | None:
         raise ConfigError(f"--init-from {source}: no complete checkpoint there; give a training run's folder "
                           f"(the --out of an earlier safemanip train)")
     src, _ = load_run_config(source / "config.json")  # only its network and task fields are read
-    differ = [f"{name} is {getattr(src, name)!r} there but {getattr(cfg, name)!r} here" for name in WARM_START_FIELDS
-              if getattr(src, name) != getattr(cfg, name)]
+    there, here = json.loads(src.to_json()), json.loads(cfg.to_json())
+    differ = [f"{name} is {setting(there, name)!r} there but {setting(here, name)!r} here" for name in WARM_START_FIELDS
+              if setting(there, name) != setting(here, name)]
     if differ:
         raise ConfigError(f"--init-from {source}: its networks do not fit this run ({'; '.join(differ)}); "
                           f"train with the source run's values")
@@ -180,23 +181,37 @@ def warm_start(cfg: TrainConfig) -> tuple[dict, dict] | None:
                       "elapsed_s": round(meta["elapsed_s"], 1)}
 
 
-RESUME_FIELDS = ("algorithm", "k", "constraints", "network", "set_embed", "hidden", "twin_critics", "embodiment",
-                 "layout", "clear_route", "near_path_fraction", "object_size", "action_curve", "slot_order",
-                 "max_episode_steps", "env", "extra_env_kwargs", "scene_objects", "scene_objects_min", "selector",
-                 "selection_radius", "selection_interval", "buffer_size")
+RESUME_FIELDS = ("algorithm", "k", "network", "set_embed", "hidden", "twin_critics", "env", "env_name",
+                 "extra_env_kwargs", "scene_objects", "scene_objects_min", "selector", "selection_radius",
+                 "selection_interval", "buffer_size")
 """What a resumed run's config.json must share with its checkpoint: the networks' shapes and the meaning of their
-inputs and outputs, the task and its scenes, and the replay buffer's size. Budgets, rates and logging may differ."""
+inputs and outputs, the task and its scenes (every env setting), and the replay buffer's size. Budgets, rates and
+logging may differ."""
+
+
+def setting(config: dict, name: str):
+    """A setting of a config as written to config.json, by its dotted name ('env.layout')."""
+    for part in name.split("."):
+        config = config.get(part) if isinstance(config, dict) else None
+    return config
 
 
 def resume_mismatch(cfg: TrainConfig, meta: dict) -> list[str]:
-    """The RESUME_FIELDS on which ``cfg`` differs from the config recorded in a checkpoint's ``meta`` (fields an
-    older checkpoint did not record are not compared)."""
+    """The RESUME_FIELDS on which ``cfg`` differs from the config recorded in a checkpoint's ``meta``, the env
+    setting by setting (fields an older checkpoint did not record are not compared)."""
     recorded = meta.get("config")
     if not isinstance(recorded, dict):
         return []
     now = json.loads(cfg.to_json())
-    return [f"{name} is {now[name]!r} in config.json but {recorded[name]!r} in the checkpoint" for name in RESUME_FIELDS
-            if name in recorded and recorded[name] != now[name]]
+    names = []
+    for name in RESUME_FIELDS:
+        both = (now.get(name), recorded.get(name))
+        if all(isinstance(value, dict) for value in both) and name == "env":
+            names += [f"env.{key}" for key in sorted(set(both[0]) | set(both[1]))]
+        elif name in recorded:
+            names.append(name)
+    return [f"{name} is {setting(now, name)!r} in config.json but {setting(recorded, name)!r} in the checkpoint"
+            for name in names if setting(now, name) != setting(recorded, name)]
 
 
 def recovery_hint(run_dir: Path) -> str:

@@ -381,8 +381,8 @@ def toy_config(out_dir: str, minutes: float, total_env_steps: int = 10**8, seed:
     from safemanip.rl.config import TrainConfig
 
     kw = {"algorithm": "rarl", **DEFAULT_TRAIN, **overrides}
-    return TrainConfig(env=TOY_ENV, extra_env_kwargs={"max_episode_steps": max_episode_steps},
-                       max_episode_steps=max_episode_steps, out_dir=out_dir, minutes=minutes,
+    return TrainConfig(env_name=TOY_ENV, extra_env_kwargs={"max_episode_steps": max_episode_steps},
+                       out_dir=out_dir, minutes=minutes,
                        total_env_steps=total_env_steps, seed=seed, **kw)
 
 
