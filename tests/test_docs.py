@@ -83,8 +83,8 @@ def test_the_results_history_is_a_short_table_whose_commits_exist():
 
 
 def _help_texts():
-    """(where, text) of what `safemanip --help` and `safemanip eval|sweep|train --help` print about each option; for
-    train, the options generated from the training config's fields."""
+    """(where, text) of what `safemanip --help` and `safemanip eval|sweep|train --help` print about each option and
+    group of options; for train, the options generated from the training config's and the env config's fields."""
     import argparse
     from dataclasses import fields
 
@@ -98,8 +98,10 @@ def _help_texts():
     config_fields = {f.name for f in fields(TrainConfig)}
     for name in ("eval", "sweep", "train"):
         for action in sub.choices[name]._actions:
-            if name != "train" or action.dest in config_fields:
+            if name != "train" or action.dest in config_fields or action.dest.startswith("env:"):
                 texts.append((f"safemanip {name} {'/'.join(action.option_strings) or action.dest}", action.help or ""))
+        texts += [(f"safemanip {name} [{group.title}]", group.title or "")
+                  for group in sub.choices[name]._action_groups]
         texts.append((f"safemanip {name} (description, epilog)", f"{sub.choices[name].description or ''} "
                                                                  f"{sub.choices[name].epilog or ''}"))
     return texts

@@ -81,7 +81,8 @@ def _package_with_a_dummy_option(tmp_path: Path) -> dict:
 
 def test_a_new_env_option_is_one_change_to_env_config_from_flag_to_evaluation(capsys, tmp_path):
     """Issue 43's check: an option added to ``EnvConfig`` alone is a ``safemanip train`` flag, a training-config
-    setting, part of the policy's metadata and of the env its evaluation builds, with no other file touched."""
+    setting, part of the policy's metadata and of the env its evaluation builds, and an ``eval`` flag, with no other
+    file touched."""
     env = _package_with_a_dummy_option(tmp_path)
 
     def safemanip(*args):
@@ -109,6 +110,11 @@ def test_a_new_env_option_is_one_change_to_env_config_from_flag_to_evaluation(ca
     assert evaluated.returncode == 0, evaluated.stderr[-2000:]
     summary = json.loads((tmp_path / "eval" / "summary.json").read_text())
     assert summary["eval"]["env_kwargs"]["dummy_gain"] == 0.5  # the env the evaluation built
+    assert "--dummy-gain DUMMY_GAIN" in safemanip("eval", "--help").stdout  # an evaluation may change it
+    changed = safemanip("eval", "--policy", run / "policy.safetensors", "--episodes", "1", "--workers", "1",
+                        "--dummy-gain", "2", "--out", tmp_path / "eval2")
+    assert changed.returncode == 0, changed.stderr[-2000:]
+    assert json.loads((tmp_path / "eval2" / "summary.json").read_text())["eval"]["env_kwargs"]["dummy_gain"] == 2.0
 
     # and this package, which has no such option, refuses the policy rather than dropping the setting
     assert_refused(capsys, ["eval", "--policy", run / "policy.safetensors", "--episodes", "1", "--workers", "1"],

@@ -126,14 +126,19 @@ def test_a_policy_runs_on_its_own_layout_unless_another_is_asked_for(tmp_path):
     pol = make_policy(tmp_path / "rarl-k2-conservative.safetensors", 2)
     own = prepare(EvalRequest(policy=pol, episodes=1)).spec.env_kwargs
     assert (own["layout"], own["clear_route"]) == ("route", True)
-    narrow = prepare(EvalRequest(policy=pol, episodes=1, layout="narrow")).spec.env_kwargs
+    narrow = prepare(EvalRequest(policy=pol, episodes=1, env={"layout": "narrow"})).spec.env_kwargs
     # the narrow layout with its own share of objects beside the route, not the policy's recorded one
     assert (narrow["layout"], narrow["clear_route"], narrow["near_path_fraction"]) == ("narrow", True, None)
     env = SlideOutEnv(**{**narrow, "constraints": "conservative"})
     env.reset(seed=3)
     assert env.placement.near_path.all() and env.placement.route.layout is LAYOUTS["narrow"]
-    with pytest.raises(EvalConfigError, match="unknown --layout 'tight'; choose one of route, narrow"):
-        prepare(EvalRequest(policy=pol, episodes=1, layout="tight"))
+    with pytest.raises(EvalConfigError, match="layout must be one of route, narrow, gate, exit, got 'tight'"):
+        prepare(EvalRequest(policy=pol, episodes=1, env={"layout": "tight"}))
+    # what belongs to the policy, the judge or the scene's own fields is not changed through env
+    for key, why in (("object_size", "the policy's own"), ("constraints", "--judge"), ("n_objects", "--n-objects"),
+                     ("speed", "unknown env setting 'speed'")):
+        with pytest.raises(EvalConfigError, match=why):
+            prepare(EvalRequest(policy=pol, episodes=1, env={key: 1}))
 
 
 def test_validation_lists_every_problem_before_any_work(tmp_path):
@@ -199,7 +204,8 @@ def test_evaluate_writes_records_and_summary(tmp_path):
 
 def test_padding_runs_a_policy_in_a_smaller_scene(tmp_path):
     pol = make_policy(tmp_path / "p.safetensors", 3, constraints="all")
-    report = evaluate(EvalRequest(policy=pol, n_objects=1, pad=True, episodes=2, workers=1, max_episode_steps=15))
+    report = evaluate(EvalRequest(policy=pol, n_objects=1, pad=True, episodes=2, workers=1,
+                                  env={"max_episode_steps": 15}))
     assert report["summary"]["eval"]["selector"] == "full" and len(report["records"]) == 2
     assert all(r["selections"] == "0:0" for r in report["records"])
 
@@ -215,7 +221,7 @@ def test_chunks_cover_all_seeds_in_order():
 def _spec(tmp_path):
     pol = make_policy(tmp_path / "p.safetensors", 2, goal_seeker=True)
     return prepare(EvalRequest(policy=pol, n_objects=5, selector="dynamic-knn", judge="conservative", episodes=6,
-                               max_episode_steps=40))
+                               env={"max_episode_steps": 40}))
 
 
 def test_local_results_do_not_depend_on_workers_or_chunking(tmp_path):

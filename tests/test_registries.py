@@ -58,4 +58,4 @@ def test_a_layout_is_one_registry_line(monkeypatch):
     assert info["scene_kind"] in ("exit", "open") and env.placement.route.layout is wide
     assert TrainConfig(env={"layout": "wide-exit"}).env_kwargs["layout"] == "wide-exit"
     args = build_parser().parse_args(["eval", "--planner", "all", "--n-objects", "3", "--layout", "wide-exit"])
-    assert args.layout == "wide-exit"
+    assert getattr(args, "env:layout") == "wide-exit"

@@ -6,9 +6,7 @@ import argparse
 import json
 import sys
 
-from safemanip.cli.common import CliError, add_compute_backend, add_config_flags, add_vlm_options, int_in
-from safemanip.scene.embodiment import EMBODIMENTS
-from safemanip.scene.placement import LAYOUTS
+from safemanip.cli.common import CliError, add_compute_backend, add_config_flags, add_env_flags, add_vlm_options, int_in
 
 EVAL_EXAMPLES = """examples:
   safemanip eval --policy rarl-k2-conservative-s0 --episodes 500 --seed-block 7 --judge conservative
@@ -41,7 +39,9 @@ def _cmd_eval(args) -> int:
     from safemanip.evaluation.harness import EvalRequest, evaluate
 
     given = {f.name: getattr(args, f.name) for f in fields(EvalRequest) if getattr(args, f.name, None) is not None}
-    req = EvalRequest(**{"policy": None, **given, "progress": not args.no_progress})
+    env = {name: getattr(args, ENV_DEST + name) for name in ENV_FLAGS.values()
+           if getattr(args, ENV_DEST + name) is not None}
+    req = EvalRequest(**{"policy": None, **given, "env": env, "progress": not args.no_progress})
     report = evaluate(req)
     print(report["text"])
     if args.out:
@@ -89,16 +89,20 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
 EVAL_FLAGS = {"--policy": "policy", "--planner": "planner", "--n-objects": "n_objects", "--semantics": "semantics",
               "--selector": "selector", "--constraint-selector": "constraint_selector", "--judge": "judge",
               "--episodes": "episodes", "--seed-block": "seed_block", "--interval": "interval", "--pad": "pad",
-              "--max-episode-steps": "max_episode_steps", "--layout": "layout", "--gate-share": "gate_share",
-              "--exit-share": "exit_share", "--embodiment": "embodiment", "--chunk-size": "chunk_size", "--out": "out",
-              "--shield": "shield", "--soft-reach": "soft_reach"}
+              "--chunk-size": "chunk_size", "--out": "out", "--shield": "shield", "--soft-reach": "soft_reach"}
 """The ``EvalRequest`` fields with a flag (the compute and semantic-backend options are shared with the sweep:
-``add_compute_backend``, ``add_vlm_options``)."""
+``add_compute_backend``, ``add_vlm_options``). The env settings an evaluation may change have a flag each, generated
+from ``EnvConfig`` (``ENV_FLAGS``)."""
+ENV_FLAGS: dict[str, str] = {}
+"""{flag: EnvConfig field} of eval's env flags (``--layout``, ``--gate-share``, ``--max-episode-steps``, ...), filled
+when the parser is built: every setting but ``harness.EVAL_FIXED``."""
+ENV_DEST = "env:"
 
 
 def register(subparsers) -> None:
     from safemanip.control.planner import PLANNER_AVOID
-    from safemanip.evaluation.harness import EVAL_BOUNDS, JUDGES, EvalRequest
+    from safemanip.env.config import ENV_CHOICES, EnvConfig
+    from safemanip.evaluation.harness import EVAL_BOUNDS, EVAL_FIXED, JUDGES, EvalRequest
     from safemanip.evaluation.registry import CONSTRAINT_SELECTORS, OBJECT_SELECTORS
     from safemanip.evaluation.harness import SEED_STRIDE
     from safemanip.safety import SHIELDS
@@ -108,8 +112,9 @@ def register(subparsers) -> None:
         epilog=EVAL_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_config_flags(ev, EvalRequest, EVAL_FLAGS, EVAL_BOUNDS, {"selector": OBJECT_SELECTORS, "judge": JUDGES,
                                                                   "constraint_selector": CONSTRAINT_SELECTORS,
-                                                                  "planner": PLANNER_AVOID, "layout": LAYOUTS,
-                                                                  "embodiment": EMBODIMENTS, "shield": SHIELDS})
+                                                                  "planner": PLANNER_AVOID, "shield": SHIELDS})
+    scene = ev.add_argument_group("the env, where it differs from the one the policy was trained in")
+    ENV_FLAGS.update(add_env_flags(scene, EnvConfig, skip=EVAL_FIXED, choices=ENV_CHOICES, prefix=ENV_DEST))
     add_vlm_options(ev)
     _add_run_options(ev)
     ev.add_argument("--json", action="store_true", help="also print the JSON summary")

@@ -109,7 +109,8 @@ def register(sub) -> None:
                                                         "writing into RUN_DIR")
     bounds = {**FIELD_BOUNDS, "minutes": Bounds(0, FIELD_BOUNDS["minutes"].hi)}  # 0 on the command line: no limit
     add_config_flags(tr, TrainConfig, FLAGS, bounds, FIELD_CHOICES, EXTRA_HELP)
-    env = tr.add_argument_group("the training env (env.config.EnvConfig; the defaults are rl.config.TRAINING_ENV's)")
+    env = tr.add_argument_group("the training env (default: every object no_contact, slots nearest first, action "
+                                "curve 2)")
     ENV_FLAGS.update(add_env_flags(env, EnvConfig, skip=("n_objects",),
                                    choices={**ENV_CHOICES, "constraints": tuple(TRAINING_CONSTRAINTS)}, prefix=ENV_DEST))
     tr.add_argument("--no-progress", action="store_true")

@@ -26,6 +26,10 @@ ENV_CHOICES = {"constraints": CONSTRAINT_MODES, "layout": LAYOUTS, "embodiment":
 registered one is taken at once): what ``EnvConfig`` checks and what the command line offers."""
 
 
+TRAINED_SETTINGS = ("slot_order", "action_curve", "object_size")
+"""Settings that belong to a policy (its observation and its action): an evaluation always runs the policy's own."""
+
+
 class EnvConfigError(ValueError):
     """Settings the env cannot take; the message says what to change."""
 

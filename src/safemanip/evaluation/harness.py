@@ -23,12 +23,12 @@ import math
 import signal
 import time
 from collections import Counter
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
 
-from safemanip.env.config import EnvConfig
+from safemanip.env.config import TRAINED_SETTINGS, EnvConfig
 from safemanip.evaluation.episode import CATEGORIES, CATEGORY_LABELS, SAFETY_VIOLATIONS
 from safemanip.evaluation.parallel import BACKENDS, EvalSpec, PartialRun, WorkerFailure, run_episodes
 from safemanip.evaluation.stats import rate_line, wilson_interval
@@ -41,7 +41,6 @@ from safemanip.util.secrets import mask_url
 
 JUDGES = {"ground-truth": "ground_truth", "conservative": "conservative"}
 SEED_STRIDE = 100_000
-MAX_EPISODE_STEPS = 100_000
 
 
 def _eval_bounds() -> dict:
@@ -50,13 +49,15 @@ def _eval_bounds() -> dict:
 
     return {"n_objects": Bounds(0, MAX_OBJECTS), "episodes": Bounds(1, SEED_STRIDE),
             "seed_block": Bounds(0, 2**31 // SEED_STRIDE - 1), "interval": Bounds(1, 100_000),
-            "max_episode_steps": Bounds(1, MAX_EPISODE_STEPS), "gate_share": Bounds(0, 1), "exit_share": Bounds(0, 1),
             "chunk_size": Bounds(1, 100_000), "soft_reach": Bounds(0, 10)}
 
 
 EVAL_BOUNDS = _eval_bounds()
 """The ranges of ``EvalRequest``'s numeric fields: ``prepare`` checks a request against them and ``safemanip eval``
 builds its flags' types from them."""
+EVAL_FIXED = ("n_objects", "classes", "names", "constraints") + TRAINED_SETTINGS
+"""The ``EnvConfig`` settings an evaluation does not change through ``EvalRequest.env``: the scene's size and classes
+have their own fields, the judge sets the constraint types, and the rest belongs to the policy."""
 METRIC_SELECTORS = tuple(name for name in OBJECT_SELECTORS if name != "full")
 """The selectors that pick k of N objects (named in the messages that ask for one)."""
 
@@ -103,20 +104,14 @@ class EvalRequest:
     vlm_episode_budget: float | None = None
     vlm_run_budget: float | None = None
     vlm_max_failures: int | None = None
-    max_episode_steps: int | None = None
-    """Episode length in control steps (default: the policy's)."""
-    layout: str | None = None
-    """Scene layout, 'route', 'narrow', 'gate' or 'exit' (default: the one the policy was trained on). The registry
-    is ``scene.placement.LAYOUTS``."""
-    gate_share: float | None = None
-    """Share of gate scenes (default: the layout's). 1 evaluates on gates only (``scene.placement.SCENE_KINDS``)."""
-    exit_share: float | None = None
-    """Share of exit scenes (default: the layout's). 1 evaluates on exit scenes only."""
+    env: dict = field(default_factory=dict)
+    """The env settings this evaluation changes from the policy's own (``env.config.EnvConfig``; for the planner,
+    from the env's defaults): e.g. {"layout": "gate", "gate_share": 1.0, "max_episode_steps": 200}. Any setting but
+    the scene's size and classes (``n_objects``, ``semantics``), the judge's constraint types (``judge``) and what
+    belongs to the policy (``EVAL_FIXED``). A new layout takes the layout's own share of objects beside the route."""
     planner: str | None = None
     """Instead of a policy, the privileged planner that keeps clear of 'all' objects or of the 'fragile' ones only:
     the bound on the same scenes (no policy then; the scene is the one the layout and the shares describe)."""
-    embodiment: str | None = None
-    """Robot to evaluate on (default: the one the policy was trained on; another one is refused)."""
     chunk_size: int | None = None
     """Episodes per worker task (default: about 8 tasks per worker)."""
     soft_reach: float | None = None
@@ -171,7 +166,7 @@ def _policy_problems(req: EvalRequest, problems: list[str]):
         problems.append(f"--policy {req.policy}: input size {obs_dim} does not match k={meta['k']} "
                         f"(expected {expected}{' with object sizes' if sized else ''})")
         return None, None
-    mismatch = embodiment_problem(meta, req.embodiment, f"--policy {req.policy}")
+    mismatch = embodiment_problem(meta, req.env.get("embodiment"), f"--policy {req.policy}")
     if mismatch:
         problems.append(mismatch)
         return None, None
@@ -253,10 +248,7 @@ def prepare(req: EvalRequest) -> Prepared:
         except ImportError:
             problems.append("--backend ray needs Ray: pip install 'ray[default]' (or use --backend local)")
         problems += ray_address_problems(req.address)
-    from safemanip.scene.placement import LAYOUTS
-
-    if req.layout is not None and req.layout not in LAYOUTS:
-        problems.append(f"unknown --layout {req.layout!r}; choose one of {', '.join(LAYOUTS)}")
+    problems += _env_override_problems(req.env)
     if req.selector is not None and req.selector not in OBJECT_SELECTORS:
         problems.append(f"unknown --selector {req.selector!r}; choose one of {', '.join(sorted(OBJECT_SELECTORS))}")
     if req.constraint_selector is not None and req.constraint_selector not in CONSTRAINT_SELECTORS:
@@ -333,12 +325,9 @@ def prepare(req: EvalRequest) -> Prepared:
     try:
         trained = EnvConfig.from_kwargs({**meta["env_kwargs"], "constraints": JUDGES[req.judge]},
                                         f"--policy {req.policy}: its env_kwargs")
-        elsewhere = {} if req.layout is None else {"near_path_fraction": None, "clear_route": True,
-                                                   "layout": req.layout}
+        elsewhere = {} if "layout" not in req.env else {"near_path_fraction": None, "clear_route": True}
         env_kwargs = replace(trained, n_objects=n, classes=tuple(classes) if classes else None,
-                             gate_share=req.gate_share, exit_share=req.exit_share,
-                             max_episode_steps=req.max_episode_steps or trained.max_episode_steps,
-                             action_curve=policy_action_curve(meta), **elsewhere).kwargs()
+                             action_curve=policy_action_curve(meta), **{**elsewhere, **req.env}).kwargs()
     except ValueError as err:
         raise EvalConfigError(f"cannot run this evaluation:\n  - {err}") from None
     options = SelectorOptions(interval=req.interval, vlm_backend=req.vlm_backend or "semantic", vlm_model=req.vlm_model,
@@ -355,11 +344,27 @@ def prepare(req: EvalRequest) -> Prepared:
     return Prepared(req, spec, meta, seeds, n, notes)
 
 
+def _env_override_problems(env) -> list[str]:
+    """What is wrong with the keys of ``EvalRequest.env`` (their values are checked by ``EnvConfig``)."""
+    if not isinstance(env, dict):
+        return [f"env must be an object of env settings, got {type(env).__name__}"]
+    known = {f.name for f in fields(EnvConfig)}
+    problems = []
+    for key in env:
+        if key in EVAL_FIXED:
+            why = {"n_objects": "give --n-objects", "classes": "give --semantics", "names": "not an evaluation setting",
+                   "constraints": "the judge sets them: --judge"}.get(key, "the policy's own, fixed by its training")
+            problems.append(f"env setting {key!r} is not changed this way ({why})")
+        elif key not in known:
+            problems.append(f"unknown env setting {key!r}; an evaluation may change "
+                            f"{sorted(known - set(EVAL_FIXED))}")
+    return problems
+
+
 def _prepare_planner(req: EvalRequest, problems: list[str], notes: list[str], classes) -> Prepared:
     """``prepare`` for the planner bound: the scenes the request describes, the planner in place of a policy."""
     from safemanip.control.planner import PLANNER_AVOID
-    from safemanip.scene.config import MAX_OBJECTS, SceneConfig
-    from safemanip.scene.placement import LAYOUTS
+    from safemanip.scene.config import MAX_OBJECTS
 
     if req.planner not in PLANNER_AVOID:
         problems.append(f"--planner must be one of {', '.join(PLANNER_AVOID)}, got {req.planner!r}")
@@ -373,21 +378,17 @@ def _prepare_planner(req: EvalRequest, problems: list[str], notes: list[str], cl
     n = req.n_objects if req.n_objects is not None else (len(classes) if classes is not None else None)
     if n is None:
         problems.append("--planner needs the scene size: --n-objects N or --semantics")
-    layout = req.layout or "route"
-    if n is not None and layout in LAYOUTS:
-        try:
-            SceneConfig(n_objects=n, classes=classes, layout=layout, gate_share=req.gate_share,
-                        exit_share=req.exit_share)
-        except ValueError as err:
-            problems.append(f"scene: {err}")
     if n is not None and not 0 <= n <= MAX_OBJECTS:
         problems.append(f"--n-objects must be 0..{MAX_OBJECTS}, got {n}")
+    env_kwargs = None
+    if n is not None and not problems:
+        try:
+            env_kwargs = EnvConfig(n_objects=n, classes=tuple(classes) if classes else None,
+                                   constraints=JUDGES[req.judge], **req.env).kwargs()
+        except ValueError as err:
+            problems.append(str(err))
     if problems:
         raise EvalConfigError("cannot run this evaluation:\n  - " + "\n  - ".join(problems))
-    env_kwargs = EnvConfig(n_objects=n, classes=tuple(classes) if classes else None, constraints=JUDGES[req.judge],
-                           layout=layout, gate_share=req.gate_share, exit_share=req.exit_share,
-                           max_episode_steps=req.max_episode_steps or 300,
-                           embodiment=req.embodiment or "panda").kwargs()
     spec = EvalSpec(actor_arrays=[], k=n, policy_constraints="all", env_kwargs=env_kwargs, selector="full",
                     constraints="ground-truth", planner=req.planner)
     meta = {"algorithm": "planner", "k": n, "constraints": "all", "planner": req.planner}

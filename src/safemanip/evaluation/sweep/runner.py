@@ -120,7 +120,7 @@ def _run_cells(spec: SweepSpec, cells: list[Cell | PlannerCell], root: Path, sta
             req = EvalRequest(policy=None, planner=cell.avoid, n_objects=cell.n_objects, semantics=cell.semantics,
                               judge=cell.judge, episodes=cell.episodes, seed_block=cell.seed, workers=workers,
                               backend=backend, address=address, out=str(cells_dir / cell.id), progress=progress,
-                              **scenes)
+                              env=scenes)
             if not _evaluate_cell(req, cell, root, status, tag, log):
                 return
             continue
@@ -135,7 +135,7 @@ def _run_cells(spec: SweepSpec, cells: list[Cell | PlannerCell], root: Path, sta
                           selector=cell.selector, constraint_selector=cell.constraints, judge=cell.judge,
                           episodes=cell.episodes, seed_block=cell.seed, workers=workers, backend=backend,
                           address=address, out=str(cells_dir / cell.id), progress=progress, shield=cell.shield,
-                          **scenes, **(vlm if cell.vlm else {}))
+                          env=scenes, **(vlm if cell.vlm else {}))
         # the file's identity (k, constraints, ...) was checked against its name before any cell ran (check_policies)
         if not _evaluate_cell(req, cell, root, status, tag, log):
             return
