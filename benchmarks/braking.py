@@ -106,8 +106,8 @@ def in_gate_cells(episodes: int = 6) -> None:
         return out
 
     request = EvalRequest(policy="rarl-k2-conservative-s0", n_objects=5, semantics="2 fragile, 3 durable",
-                          selector="dynamic-knn", layout="gate", gate_share=1.0, episodes=episodes, seed_block=45,
-                          shield="brake", workers=1)
+                          selector="dynamic-knn", env={"layout": "gate", "gate_share": 1.0}, episodes=episodes,
+                          seed_block=45, shield="brake", workers=1)
     prepared = prepare(request)
     BrakingShield.filter, Env.step = timed_filter, timed_step  # timing only; restored below
     try:

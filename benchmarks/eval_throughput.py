@@ -45,7 +45,7 @@ def make_spec(policy: str | None, n_objects: int, max_steps: int | None) -> tupl
             continue
         # the spec `safemanip eval` would run (embodiment, action curve, object sizes, layout from the policy)
         prep = prepare(EvalRequest(policy=path, n_objects=n_objects, selector="dynamic-knn", judge="ground-truth",
-                                   episodes=1, max_episode_steps=max_steps))
+                                   episodes=1, env={"max_episode_steps": max_steps}))
         return prep.spec, f"policy {path} ({meta['algorithm']} k={meta['k']} {meta['constraints']})"
     env_kwargs = {"n_objects": n_objects, "constraints": "ground_truth", "near_path_fraction": 0.5,
                   "max_episode_steps": max_steps or 300}

@@ -20,7 +20,7 @@ def stored(policy, selector, shield, success, collided, timeout, overrides=0, n=
         summary["shield_interventions"] = {"overrides": overrides, "steps": 40 * n, "rate": overrides / (40 * n)}
     cell = {"policy": f"policies/{policy}.safetensors", "algorithm": policy.split("-")[0], "k": 2,
             "policy_constraints": "conservative", "n_objects": 5, "semantics": semantics, "selector": selector,
-            "constraints": "conservative", "judge": "ground-truth", "episodes": n, "seed": 48, "train_seed": seed,
+            "constraints": "conservative", "judge": "ground-truth", "episodes": n, "seed": 50, "train_seed": seed,
             "shield": shield}
     return {"cell": cell, "summary": summary}
 

@@ -17,8 +17,9 @@ What it sees is what a deployed robot's perception and controller report: every 
 radius (a bounding box), the held box's pose and velocity, and the Cartesian command the robot's own controller is
 tracking. It never steps the simulator ahead.
 
-What it assumes (docs/safety.md): objects stand still while the box brakes; the box's footprint, swept along its
-path, covers the hand (the pads press on the box's lip, inside its footprint) but not the rest of the arm; the
+What it assumes (docs/safety.md): objects stand still while the box brakes; the box's footprint and the hand's, swept
+along its path, cover the robot near the table (the hand's only for objects tall enough to reach it), the rest of the
+arm is not swept; the
 arm decelerates at least ``decel`` along any horizontal direction once its command falls below its actual speed,
 after a lag of one control step; and the command leads the arm by at most what it asked for beyond the arm's speed.
 ``decel`` and ``lag`` were measured by braking from full-speed pulls in eight directions (``benchmarks/braking.py``).
@@ -105,6 +106,7 @@ class BrakingShield:
                        soft=np.array([constraints[i] == "soft_contact" for i in guarded]),
                        obj_yaw=np.array([_yaw(q) for q in env.data.xquat[bodies]]),
                        rect_offset=rects[:, :2], rect_half=rects[:, 2:])
+        scene.robot = _robot_footprints(env, scene, tuple(env.names[i] for i in guarded), bodies)
         scene.now = _clearances(scene, scene.box)
         velocity = np.asarray(state.bottom_vel[:2], dtype=float)
         command = np.asarray(env.setpoint.command[:2], dtype=float)
@@ -234,6 +236,9 @@ class _Scene:
     """(N,) each object's yaw, with ``rect_offset`` (N, 2) and ``rect_half`` (N, 2): its footprint rectangle."""
     rect_offset: np.ndarray
     rect_half: np.ndarray
+    robot: list = field(default_factory=list)
+    """The robot's own parts beside the held box, each (offset from the box [m] (2,), half size (2,), which objects
+    (N,) reach up to it): their footprints at the box's yaw, swept with the box (``_robot_footprints``)."""
     now: np.ndarray | None = None
     moving_safe: bool | None = None
     """Whether the box's present motion, braked, keeps clear (``_safe``): the same for every candidate action."""
@@ -274,13 +279,52 @@ def _footprint_rects(names: tuple[str, ...]) -> np.ndarray:
     return np.array([catalog[n].footprint_rect for n in names], dtype=float).reshape(-1, 4)
 
 
+def _robot_footprints(env, scene: "_Scene", names: tuple[str, ...], bodies: np.ndarray) -> list:
+    """The footprint of each of the robot's judged parts other than the held box (the Panda's hand: the judge's
+    distance geoms), as a rectangle at the box's yaw that moves with the box, and the objects tall enough to reach
+    its lowest point. From the robot's own state (its kinematics), what a real robot knows of itself: the hand above
+    the box reaches past the box's footprint once the box has turned in the grip, and meets the top of a tall
+    object (a wine glass's bowl) that the box passes."""
+    m, d = env.model, env.data
+    c, s = math.cos(scene.yaw), math.sin(scene.yaw)
+    tops = np.array([load_catalog()[n].height for n in names]) + d.xpos[bodies][:, 2]
+    out = []
+    for g in env.index.manipulated_geoms:  # the judge's: the held box's and the robot's
+        if int(m.geom_bodyid[g]) == env.index.bottom_box_body:
+            continue
+        centre, half = m.geom_aabb[g][:3], m.geom_aabb[g][3:]
+        corners = d.geom_xpos[g] + (centre + _CUBE * half) @ d.geom_xmat[g].reshape(3, 3).T  # (8, 3) world
+        rel = corners[:, :2] - scene.box
+        local = np.stack((rel[:, 0] * c + rel[:, 1] * s, -rel[:, 0] * s + rel[:, 1] * c), axis=-1)  # box frame
+        lo, hi = local.min(axis=0), local.max(axis=0)
+        mid, size = 0.5 * (lo + hi), 0.5 * (hi - lo)
+        reach = tops > corners[:, 2].min()
+        if reach.any():
+            out.append((np.array([c * mid[0] - s * mid[1], s * mid[0] + c * mid[1]]), size, reach))
+    return out
+
+
+_CUBE = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
+
+
 def _clearances(scene: "_Scene", box) -> np.ndarray:
-    """Distance [m] from the box's footprint rectangle, centred at ``box`` ((2,) or (S, 2) positions), to each object
-    (negative: overlapping), (N,) or (S, N). An object lies inside both its footprint circle and its oriented
-    footprint rectangle, so the larger of the two distances is still never more than the distance to the object:
-    the circle is the tighter bound for round objects, the rectangle for long ones."""
+    """Distance [m] from the robot's footprints centred at ``box`` ((2,) or (S, 2) positions) to each object
+    (negative: overlapping), (N,) or (S, N): the held box's rectangle, and for the objects tall enough, the rest of the
+    robot's judged parts (``scene.robot``)."""
+    out = _footprint_clearances(scene, box, scene.half)
+    for offset, half, reach in scene.robot:
+        part = _footprint_clearances(scene, np.asarray(box, dtype=float) + offset, half)
+        out[..., reach] = np.minimum(out[..., reach], part[..., reach])
+    return out
+
+
+def _footprint_clearances(scene: "_Scene", box, half) -> np.ndarray:
+    """Distance [m] from a rectangle of half size ``half`` at the box's yaw, centred at ``box`` ((2,) or (S, 2)
+    positions), to each object (negative: overlapping), (N,) or (S, N). An object lies inside both its footprint
+    circle and its oriented footprint rectangle, so the larger of the two distances is still never more than the
+    distance to the object: the circle is the tighter bound for round objects, the rectangle for long ones."""
     box = np.asarray(box, dtype=float)
-    circle = _circle_clearances(box, scene.yaw, scene.half, scene.centres, scene.radii)
+    circle = _circle_clearances(box, scene.yaw, half, scene.centres, scene.radii)
     # the rectangle only where the circle is near: farther than RECT_NEAR every threshold the filter uses (at most
     # 2 cm) is passed by the circle alone, and the exact value is no smaller, so no decision changes (and the
     # corner-to-edge distances, the costly part, run for the few objects near the swept path)
@@ -293,7 +337,7 @@ def _clearances(scene: "_Scene", box) -> np.ndarray:
     offset = scene.rect_offset
     rect_centres = scene.centres + np.stack((c * offset[:, 0] - s * offset[:, 1],
                                              s * offset[:, 0] + c * offset[:, 1]), axis=-1)
-    rect = _rect_distances(box.reshape(-1, 2)[rows], scene.yaw, scene.half, rect_centres[cols], scene.obj_yaw[cols],
+    rect = _rect_distances(box.reshape(-1, 2)[rows], scene.yaw, half, rect_centres[cols], scene.obj_yaw[cols],
                            scene.rect_half[cols])
     out = circle.reshape(-1, n).copy()
     out[rows, cols] = np.maximum(out[rows, cols], rect)
