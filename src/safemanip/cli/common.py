@@ -92,24 +92,26 @@ def add_config_flags(parser: argparse.ArgumentParser, cls: type, flags: dict[str
         parser.add_argument(flag, dest=name, type=typ, choices=allowed, default=None, help=help_)
 
 
-def add_env_flags(parser: argparse.ArgumentParser, cls: type, skip: tuple[str, ...], choices: dict,
-                  prefix: str = "env:") -> dict[str, str]:
+ENV_DEST = "env:"
+"""Where the env flags' values land in the parsed arguments: ``env:layout`` for ``--layout``."""
+
+
+def add_env_flags(parser: argparse.ArgumentParser, cls: type, skip: tuple[str, ...], choices: dict) -> None:
     """One option per field of the env config ``cls`` (``env.config.EnvConfig``) but ``skip``, generated from the
     field alone, so that a new env setting is on the command line the moment it is in the config: ``--layout``
     for ``layout``, a bool as ``--object-size`` / ``--no-object-size``, choices from ``choices``, help from the
     docstring. Fields holding lists (names, classes) are set through a config file. The config checks ranges itself.
-    Returns {flag: field}; each value lands in ``args`` under ``prefix + field`` (None: not given)."""
+    Each value lands in ``args`` under ``ENV_DEST + field`` (None: not given; ``env_flag_values`` collects them)."""
     from dataclasses import fields
 
     from safemanip.util.docs import field_docs, first_sentence
 
     docs = field_docs(cls)
-    flags = {}
     for f in fields(cls):
         kind = f.type.replace(" | None", "").strip()
         if f.name in skip or kind.startswith("tuple"):
             continue
-        flag, dest = "--" + f.name.replace("_", "-"), prefix + f.name
+        flag, dest = env_flag(f.name), ENV_DEST + f.name
         help_ = first_sentence(docs.get(f.name, "")).replace("%", "%%")
         if kind == "bool":
             parser.add_argument(flag, dest=dest, action=argparse.BooleanOptionalAction, default=None, help=help_)
@@ -118,8 +120,17 @@ def add_env_flags(parser: argparse.ArgumentParser, cls: type, skip: tuple[str, .
             allowed = sorted(choices[f.name]) if f.name in choices else None
             parser.add_argument(flag, dest=dest, type=typ, choices=allowed, default=None, help=help_,
                                 metavar=None if allowed else f.name.upper())
-        flags[flag] = f.name
-    return flags
+
+
+def env_flag(name: str) -> str:
+    """The command-line flag of an env setting: ``--gate-share`` for ``gate_share``."""
+    return "--" + name.replace("_", "-")
+
+
+def env_flag_values(args: argparse.Namespace) -> dict:
+    """{env setting: value} of the env flags given (``add_env_flags``)."""
+    return {key[len(ENV_DEST):]: value for key, value in vars(args).items()
+            if key.startswith(ENV_DEST) and value is not None}
 
 
 SEED = int_in(0, 2**31 - 1)

@@ -6,7 +6,8 @@ import argparse
 import json
 import sys
 
-from safemanip.cli.common import CliError, add_compute_backend, add_config_flags, add_env_flags, add_vlm_options, int_in
+from safemanip.cli.common import (CliError, add_compute_backend, add_config_flags, add_env_flags, add_vlm_options,
+                                  env_flag_values, int_in)
 
 EVAL_EXAMPLES = """examples:
   safemanip eval --policy rarl-k2-conservative-s0 --episodes 500 --seed-block 7 --judge conservative
@@ -39,9 +40,7 @@ def _cmd_eval(args) -> int:
     from safemanip.evaluation.harness import EvalRequest, evaluate
 
     given = {f.name: getattr(args, f.name) for f in fields(EvalRequest) if getattr(args, f.name, None) is not None}
-    env = {name: getattr(args, ENV_DEST + name) for name in ENV_FLAGS.values()
-           if getattr(args, ENV_DEST + name) is not None}
-    req = EvalRequest(**{"policy": None, **given, "env": env, "progress": not args.no_progress})
+    req = EvalRequest(**{"policy": None, **given, "env": env_flag_values(args), "progress": not args.no_progress})
     report = evaluate(req)
     print(report["text"])
     if args.out:
@@ -91,12 +90,8 @@ EVAL_FLAGS = {"--policy": "policy", "--planner": "planner", "--n-objects": "n_ob
               "--episodes": "episodes", "--seed-block": "seed_block", "--interval": "interval", "--pad": "pad",
               "--chunk-size": "chunk_size", "--out": "out", "--shield": "shield", "--soft-reach": "soft_reach"}
 """The ``EvalRequest`` fields with a flag (the compute and semantic-backend options are shared with the sweep:
-``add_compute_backend``, ``add_vlm_options``). The env settings an evaluation may change have a flag each, generated
-from ``EnvConfig`` (``ENV_FLAGS``)."""
-ENV_FLAGS: dict[str, str] = {}
-"""{flag: EnvConfig field} of eval's env flags (``--layout``, ``--gate-share``, ``--max-episode-steps``, ...), filled
-when the parser is built: every setting but ``harness.EVAL_FIXED``."""
-ENV_DEST = "env:"
+``add_compute_backend``, ``add_vlm_options``). The env settings an evaluation may change (every one but
+``harness.EVAL_FIXED``) have a flag each, generated from ``EnvConfig`` (``cli.common.add_env_flags``)."""
 
 
 def register(subparsers) -> None:
@@ -114,7 +109,7 @@ def register(subparsers) -> None:
                                                                   "constraint_selector": CONSTRAINT_SELECTORS,
                                                                   "planner": PLANNER_AVOID, "shield": SHIELDS})
     scene = ev.add_argument_group("the env, where it differs from the one the policy was trained in")
-    ENV_FLAGS.update(add_env_flags(scene, EnvConfig, skip=EVAL_FIXED, choices=ENV_CHOICES, prefix=ENV_DEST))
+    add_env_flags(scene, EnvConfig, skip=EVAL_FIXED, choices=ENV_CHOICES)
     add_vlm_options(ev)
     _add_run_options(ev)
     ev.add_argument("--json", action="store_true", help="also print the JSON summary")

@@ -9,7 +9,7 @@ import signal
 import sys
 from pathlib import Path
 
-from safemanip.cli.common import CliError, add_config_flags, add_env_flags
+from safemanip.cli.common import CliError, add_config_flags, add_env_flags, env_flag, env_flag_values
 
 FLAGS = {
     "--algorithm": "algorithm", "--k": "k",
@@ -25,11 +25,8 @@ FLAGS = {
 }
 """The ``TrainConfig`` fields with a flag; every other field is set through ``--config``. The flags' types, ranges,
 choices and help come from the config itself (``cli.common.add_config_flags``). The env's settings have a flag each,
-generated from ``EnvConfig`` (``ENV_FLAGS``)."""
-ENV_FLAGS: dict[str, str] = {}
-"""{flag: EnvConfig field} of the training env's flags, filled when the parser is built (``add_env_flags``): every
-env setting but n_objects (k's) and the lists (names, classes: through --config)."""
-ENV_DEST = "env:"
+generated from ``EnvConfig`` (``cli.common.add_env_flags``): every one but n_objects (k's) and the lists (names,
+classes: through --config)."""
 EXTRA_HELP = {"address": "Default: RAY_ADDRESS, else a local Ray instance; never read from a config file."}
 
 
@@ -39,8 +36,7 @@ def _cmd_train(args) -> int:
     from safemanip.util.files import check_output_dir
 
     given = {field: getattr(args, field) for field in FLAGS.values() if getattr(args, field) is not None}
-    given_env = {field: getattr(args, ENV_DEST + field) for field in ENV_FLAGS.values()
-                 if getattr(args, ENV_DEST + field) is not None}
+    given_env = env_flag_values(args)
     if given.get("minutes") == 0:
         given["minutes"] = None  # documented: 0 means no time limit
     if args.resume:
@@ -59,9 +55,8 @@ def _cmd_train(args) -> int:
         address = given.pop("address", None)  # where the workers run, not a setting of the run: allowed
         conflicts = [f"{flag} {getattr(args, field)} (the run has {getattr(cfg, field)!r})"
                      for flag, field in FLAGS.items() if field in given and given[field] != getattr(cfg, field)]
-        conflicts += [f"{flag} {given_env[field]} (the run has {getattr(cfg.env, field)!r})"
-                      for flag, field in ENV_FLAGS.items() if field in given_env
-                      and given_env[field] != getattr(cfg.env, field)]
+        conflicts += [f"{env_flag(field)} {value} (the run has {getattr(cfg.env, field)!r})"
+                      for field, value in given_env.items() if value != getattr(cfg.env, field)]
         if conflicts:
             raise CliError(f"--resume continues {run_dir} with its own settings; these flags differ from them: "
                            f"{'; '.join(conflicts)}. Drop them, or start a new run with --out")
@@ -111,7 +106,7 @@ def register(sub) -> None:
     add_config_flags(tr, TrainConfig, FLAGS, bounds, FIELD_CHOICES, EXTRA_HELP)
     env = tr.add_argument_group("the training env (default: every object no_contact, slots nearest first, action "
                                 "curve 2)")
-    ENV_FLAGS.update(add_env_flags(env, EnvConfig, skip=("n_objects",),
-                                   choices={**ENV_CHOICES, "constraints": tuple(TRAINING_CONSTRAINTS)}, prefix=ENV_DEST))
+    add_env_flags(env, EnvConfig, skip=("n_objects",),
+                  choices={**ENV_CHOICES, "constraints": tuple(TRAINING_CONSTRAINTS)})
     tr.add_argument("--no-progress", action="store_true")
     tr.set_defaults(func=_cmd_train)

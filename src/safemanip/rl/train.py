@@ -206,7 +206,7 @@ def resume_mismatch(cfg: TrainConfig, meta: dict) -> list[str]:
     names = []
     for name in RESUME_FIELDS:
         both = (now.get(name), recorded.get(name))
-        if all(isinstance(value, dict) for value in both) and name == "env":
+        if name == "env" and all(isinstance(value, dict) for value in both):
             names += [f"env.{key}" for key in sorted(set(both[0]) | set(both[1]))]
         elif name in recorded:
             names.append(name)

@@ -272,6 +272,13 @@ def _yaw(quat: np.ndarray) -> float:
 
 
 @lru_cache(maxsize=256)
+def _heights(names: tuple[str, ...]) -> np.ndarray:
+    """(N,) each object's height above its base (the catalog's), for which objects reach the hand."""
+    catalog = load_catalog()
+    return np.array([catalog[n].height for n in names], dtype=float)
+
+
+@lru_cache(maxsize=256)
 def _footprint_rects(names: tuple[str, ...]) -> np.ndarray:
     """(N, 4) each object's footprint rectangle in its own frame: centre offset x, y, half x, half y (the catalog's
     ``footprint_rect``, what an oriented bounding box from perception gives)."""
@@ -287,7 +294,7 @@ def _robot_footprints(env, scene: "_Scene", names: tuple[str, ...], bodies: np.n
     object (a wine glass's bowl) that the box passes."""
     m, d = env.model, env.data
     c, s = math.cos(scene.yaw), math.sin(scene.yaw)
-    tops = np.array([load_catalog()[n].height for n in names]) + d.xpos[bodies][:, 2]
+    tops = _heights(names) + d.xpos[bodies][:, 2]
     out = []
     for g in env.index.manipulated_geoms:  # the judge's: the held box's and the robot's
         if int(m.geom_bodyid[g]) == env.index.bottom_box_body:
